@@ -1,0 +1,1 @@
+"""Alembic migrations of the catenary database (shipped as a package so installs carry them)."""

@@ -1,0 +1,5 @@
+"""catenary: contact wire wear platform."""
+
+from catenary.hookspecs import hookimpl
+
+__all__ = ["hookimpl"]

@@ -1,0 +1,88 @@
+"""Domain types shared by every source, processor and store (units in the field names).
+
+Frames and units are those of ``FORMATS.md``: roof and track frames in millimetres, positions
+along the track in metres, times in seconds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+BoolArray = NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class VehicleGeometry:
+    """The car body's geometry for vehicle compensation (FORMATS.md, vehicle TOML)."""
+
+    name: str
+    roof_height_mm: float
+    sensor_height_mm: float
+    sensor_baseline_mm: float
+
+
+@dataclass(frozen=True)
+class VehicleSamples:
+    """The three displacement sensors, each ``[K]``, on the scan clock.
+
+    ``fault`` marks samples that must not be trusted (dropped frames, stuck or out-of-range
+    sensor); consumers flag the affected scans instead of silently interpolating over them.
+    """
+
+    time_s: FloatArray
+    left_mm: FloatArray
+    right_mm: FloatArray
+    lateral_mm: FloatArray
+    fault: BoolArray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    def __post_init__(self) -> None:
+        if self.fault.shape != self.time_s.shape:
+            object.__setattr__(self, "fault", np.zeros(self.time_s.shape, dtype=bool))
+
+
+@dataclass(frozen=True)
+class CameraLines:
+    """One camera's lines for a block of scans: ``lines`` is ``[n, W]`` uint8 or uint16."""
+
+    lines: NDArray[np.uint8] | NDArray[np.uint16]
+    bit_depth: int
+
+
+@dataclass(frozen=True)
+class ScanBlock:
+    """A block of ``n`` consecutive scans of a run, every camera triggered together.
+
+    ``first_scan`` is the index of the block's first scan in the run; ``position_m`` and
+    ``time_s`` are ``[n]``; ``vehicle`` holds the sensor values interpolated to the scan times
+    (each field ``[n]``; ``fault`` true where a sample used was faulty or missing).
+    """
+
+    first_scan: int
+    position_m: FloatArray
+    time_s: FloatArray
+    cameras: dict[str, CameraLines]
+    vehicle: VehicleSamples
+
+    @property
+    def scans(self) -> int:
+        return int(self.position_m.shape[0])
+
+
+@dataclass(frozen=True)
+class RunHeader:
+    """A recorded run's root attributes (FORMATS.md) and its shape."""
+
+    line: str
+    track: str
+    vehicle: str
+    direction: str  # "increasing" or "decreasing" chainage
+    start_chainage_m: float
+    started_at: str  # ISO 8601 UTC
+    scan_rate_hz: float
+    scans: int
+    camera_pixels: dict[str, int]
+    camera_bit_depth: dict[str, int]

@@ -1,0 +1,1 @@
+"""Line-scan stereovision: camera model, calibration, simulator and processor (the paper)."""

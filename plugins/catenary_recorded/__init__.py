@@ -1,0 +1,1 @@
+"""Recorded run files (HDF5) as an acquisition source."""
