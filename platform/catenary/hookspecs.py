@@ -16,6 +16,7 @@ from typing import Any
 
 import pluggy
 
+from catenary.limits import LimitPolicy
 from catenary.registrations import Command, Notifier, Processor, Reporter, Source
 from catenary.wiretype import WireType
 
@@ -30,6 +31,15 @@ def catenary_wire_types() -> Iterable[WireType]:
 
     Called once when the registry first needs wire types. Return ``WireType`` objects, each
     with a name unique across all plugins (``"CTA120"``, ``"AC-100"``).
+    """
+
+
+@hookspec
+def catenary_limit_policies() -> Iterable[LimitPolicy]:
+    """Wear-limit policies (operators' rules) this plugin ships as presets.
+
+    Return ``LimitPolicy`` objects (``catenary.limits``), each with a unique name; users
+    choose one in their config (``[limits] policy = "NAME"``) or bring their own file.
     """
 
 

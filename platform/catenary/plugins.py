@@ -17,6 +17,7 @@ from typing import Any, TypeVar
 import pluggy
 
 from catenary import hookspecs
+from catenary.limits import LimitPolicy
 from catenary.registrations import Command, Notifier, Processor, Reporter, Source
 from catenary.wiretype import WireType
 
@@ -119,7 +120,7 @@ class PluginRegistry:
             return self._cache[hook]
         found: dict[str, T] = {}
         caller = getattr(self._pm.hook, hook)
-        for impl in reversed(caller.get_hookimpls()):  # load order
+        for impl in caller.get_hookimpls():  # registration (load) order; pluggy calls LIFO
             plugin = impl.plugin_name
             try:
                 result = impl.function()
@@ -150,6 +151,9 @@ class PluginRegistry:
     def wire_types(self) -> dict[str, WireType]:
         return self._collect("catenary_wire_types", "wire type", WireType)
 
+    def limit_policies(self) -> dict[str, LimitPolicy]:
+        return self._collect("catenary_limit_policies", "limit policy", LimitPolicy)
+
     def sources(self) -> dict[str, Source]:
         return self._collect("catenary_sources", "source", Source)
 
@@ -169,6 +173,7 @@ class PluginRegistry:
         """For each plugin, the names it registers per kind (for ``catenary plugins``)."""
         for collect in (
             self.wire_types,
+            self.limit_policies,
             self.sources,
             self.processors,
             self.reporters,
@@ -183,7 +188,7 @@ class PluginRegistry:
 
     def _notify(self, hook: str, kwargs: Mapping[str, Any]) -> None:
         caller = getattr(self._pm.hook, hook)
-        for impl in reversed(caller.get_hookimpls()):
+        for impl in caller.get_hookimpls():  # load order
             call: Callable[..., Any] = impl.function
             try:
                 call(**kwargs)

@@ -8,7 +8,8 @@ wear face of width ``w`` leaves (``reference/wire-profiles.md``; the paper's eq.
     h = (A - R) + sqrt(R**2 - (w / 2)**2)
 
 and cuts off a circular segment of depth ``d = A - h``; the worn fraction is the segment's
-area over the profile's cross-section.
+area over the profile's cross-section. A worn fraction (an operator's limit) is turned back
+into a wear width by bisection on the segment's half-angle (``wear_width_for_worn_area_mm``).
 """
 
 from __future__ import annotations
@@ -64,6 +65,37 @@ def worn_area_mm2(wear_width_mm: ArrayLike, width_mm: float) -> FloatArray:
     return np.asarray(area, dtype=np.float64)
 
 
+def _x_minus_sin_x(x: FloatArray) -> FloatArray:
+    """``x - sin(x)`` without cancellation for small ``x`` (Taylor series below 0.1)."""
+    x2 = x * x
+    series = x * x2 / 6.0 * (1.0 - x2 / 20.0 * (1.0 - x2 / 42.0 * (1.0 - x2 / 72.0)))
+    return np.where(np.abs(x) < 0.1, series, x - np.sin(x))
+
+
+def wear_width_for_worn_area_mm(
+    worn_area_mm2: ArrayLike, width_mm: float, iterations: int = 64
+) -> FloatArray:
+    """Wear-face width ``w`` [mm] whose circular segment has area ``worn_area_mm2`` [mm²].
+
+    The inverse of ``worn_area_mm2``, any shape. With ``theta`` the segment's half-angle the
+    area is ``R**2 / 2 * (2 theta - sin 2 theta)`` (increasing on ``[0, pi/2]``) and
+    ``w = 2 R sin(theta)``; ``theta`` is found by vectorised bisection, ``iterations`` halvings
+    of ``[0, pi/2]`` (64 reach the float64 resolution, far below 1e-6 mm of thickness).
+    Areas must lie in ``[0, pi R**2 / 2]`` (the caller checks); NaN stays NaN.
+    """
+    target = np.asarray(worn_area_mm2, dtype=np.float64)
+    radius = width_mm / 2.0
+    low = np.zeros_like(target)
+    high = np.full_like(target, np.pi / 2.0)
+    for _ in range(iterations):
+        mid = 0.5 * (low + high)
+        below = 0.5 * radius**2 * _x_minus_sin_x(2.0 * mid) < target
+        low = np.where(below, mid, low)
+        high = np.where(below, high, mid)
+    width = 2.0 * radius * np.sin(0.5 * (low + high))
+    return np.where(np.isnan(target), np.nan, width)
+
+
 @dataclass(frozen=True)
 class WireType:
     """A contact wire profile registered by a wire-type plugin.
@@ -96,14 +128,21 @@ class WireType:
         """Thickness left when the flat face spans the whole width (``A - R``) [mm]."""
         return self.height_mm - self.width_mm / 2.0
 
-    def _check_range(self, values: FloatArray, low: float, high: float, what: str) -> None:
-        finite = np.isfinite(values)
-        bad = finite & ((values < low - 1e-9) | (values > high + 1e-9))
+    @property
+    def max_worn_fraction(self) -> float:
+        """Worn fraction when the flat face spans the whole width (half the round part)."""
+        return float(np.pi * (self.width_mm / 2.0) ** 2 / 2.0 / self.area_mm2)
+
+    def _check_range(
+        self, values: FloatArray, low: float, high: float, what: str, unit: str = " mm"
+    ) -> None:
+        # NaN (no measurement) passes through; infinities are outside every profile.
+        bad = ~np.isnan(values) & ((values < low - 1e-9) | (values > high + 1e-9))
         if np.any(bad):
             first = float(values[bad].flat[0])
             raise ProfileRangeError(
-                f"{what} {first:.3f} mm is outside wire type {self.name}'s profile "
-                f"({low:.2f} to {high:.2f} mm)"
+                f"{what} {first:.3f}{unit} is outside wire type {self.name}'s profile "
+                f"({low:.2f} to {high:.2f}{unit})"
             )
 
     def residual_thickness_mm(self, wear_width_mm: ArrayLike) -> FloatArray:
@@ -127,3 +166,13 @@ class WireType:
     def worn_fraction(self, wear_width_mm: ArrayLike) -> FloatArray:
         """Worn fraction of the cross-section (0 new, 0.2 = 20 % loss) from wear width [mm]."""
         return self.worn_area_mm2(wear_width_mm) / self.area_mm2
+
+    def wear_width_for_worn_fraction(self, worn_fraction: ArrayLike) -> FloatArray:
+        """Wear width [mm] at which the worn fraction is reached: the inverse of ``worn_fraction``.
+
+        Fractions must lie in ``[0, max_worn_fraction]`` (any shape; NaN stays NaN).
+        """
+        f = np.asarray(worn_fraction, dtype=np.float64)
+        self._check_range(f, 0.0, self.max_worn_fraction, "worn fraction", unit="")
+        area = np.clip(f, 0.0, self.max_worn_fraction) * self.area_mm2
+        return wear_width_for_worn_area_mm(area, self.width_mm)
