@@ -1,0 +1,102 @@
+"""``catenary db``: migrate the database and check its schema."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+import click
+from sqlalchemy import Engine
+
+from catenary.storage import migrate
+from catenary.storage.database import mask_url, open_database, require_migrated
+
+
+@contextmanager
+def _engine(ctx: click.Context) -> Iterator[Engine]:
+    """The engine of the invocation's database (``--db``), disposed of on exit."""
+    from catenary.cli import app_of  # catenary.cli imports this module to add `db`
+
+    with open_database(app_of(ctx).settings.database_url, migrated=False) as engine:
+        yield engine
+
+
+def _describe_revision(revision: str | None) -> str:
+    if revision is None:
+        return "base (no schema)"
+    head = migrate.head_revision()
+    if revision == head:
+        return f"{revision} (head)"
+    if migrate.is_known_revision(revision):
+        return f"{revision} (head is {head})"
+    return f"{revision} (unknown to this version of catenary; head is {head})"
+
+
+@click.group("db")
+def db() -> None:
+    """Create and migrate the database schema (SQLite file by default, or --db URL)."""
+
+
+@db.command("upgrade")
+@click.argument("revision", default="head")
+@click.pass_context
+def upgrade_command(ctx: click.Context, revision: str) -> None:
+    """Migrate the database up to REVISION (default: head, what this catenary needs)."""
+    with _engine(ctx) as engine:
+        before = migrate.current_revision(engine)
+        after = migrate.upgrade(engine, revision)
+        where = mask_url(engine.url)
+        if after == before:
+            click.echo(f"database {where} is already at {_describe_revision(after)}")
+        else:
+            click.echo(f"database {where} upgraded to {_describe_revision(after)}")
+
+
+@db.command("downgrade")
+@click.argument("revision")
+@click.pass_context
+def downgrade_command(ctx: click.Context, revision: str) -> None:
+    """Migrate the database down to REVISION ('base' drops every table and its data)."""
+    with _engine(ctx) as engine:
+        before = migrate.current_revision(engine)
+        after = migrate.downgrade(engine, revision)
+        where = mask_url(engine.url)
+        if after == before:
+            click.echo(f"database {where} is already at {_describe_revision(after)}")
+        else:
+            click.echo(f"database {where} downgraded to {_describe_revision(after)}")
+
+
+@db.command("current")
+@click.pass_context
+def current_command(ctx: click.Context) -> None:
+    """Show the database's revision and whether it is the one this catenary needs."""
+    with _engine(ctx) as engine:
+        revision = migrate.current_revision(engine)
+        where = mask_url(engine.url)
+        if revision is None:
+            click.echo(f"database {where} is not migrated: run 'catenary db upgrade'")
+        elif revision != migrate.head_revision() and migrate.is_known_revision(revision):
+            click.echo(
+                f"database {where} is at {_describe_revision(revision)}: run 'catenary db upgrade'"
+            )
+        else:
+            click.echo(f"database {where} is at {_describe_revision(revision)}")
+
+
+@db.command("check")
+@click.pass_context
+def check_command(ctx: click.Context) -> None:
+    """Check that the database's schema is what the models describe (exit 1 if not)."""
+    with _engine(ctx) as engine:
+        require_migrated(engine)
+        differences = migrate.check_models_match(engine)
+        where = mask_url(engine.url)
+    if differences:
+        click.echo(f"database {where} differs from the models:", err=True)
+        for difference in differences:
+            click.echo(f"    {difference}", err=True)
+        ctx.exit(1)
+    click.echo(
+        f"database {where} matches the models at {_describe_revision(migrate.head_revision())}"
+    )

@@ -1,0 +1,204 @@
+"""The database: engines, the unit of work, and the check that the schema is migrated.
+
+A SQLite file is the default (one user, zero set-up); PostgreSQL serves a fleet. Every error a
+user can cause here (a malformed URL, an unknown driver, a server that cannot be reached, a
+database that is not migrated) is a one-line ``UserError`` naming the URL with any password
+masked.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from sqlalchemy import Engine, create_engine, event
+from sqlalchemy.engine import URL, Connection, make_url
+from sqlalchemy.exc import ArgumentError, DBAPIError, NoSuchModuleError
+from sqlalchemy.orm import Session
+
+from catenary.errors import DatabaseNotMigrated, UserError
+
+#: How long a SQLite connection waits for another process's lock before giving up.
+SQLITE_BUSY_TIMEOUT_MS = 30_000
+
+_PASSWORD_IN_URL = re.compile(r"(//[^/?#@:]*:)[^/?#@]*@")
+
+
+def mask_url(url: str | URL) -> str:
+    """``url`` as text, with any password replaced by ``***`` (for messages and logs)."""
+    if isinstance(url, URL):
+        return url.render_as_string(hide_password=True)
+    try:
+        return make_url(url).render_as_string(hide_password=True)
+    except ArgumentError:
+        return _PASSWORD_IN_URL.sub(r"\1***@", url)
+
+
+def one_line(exc: BaseException) -> str:
+    """A driver's error message on one line (``DBAPIError`` text spans several)."""
+    orig = exc.orig if isinstance(exc, DBAPIError) else exc
+    return " ".join(str(orig).split()) or type(orig).__name__
+
+
+def _sqlite_file(url: URL) -> Path | None:
+    """The file of a SQLite URL; None for an in-memory database or a ``file:`` URI."""
+    database = url.database
+    if (
+        not database
+        or database == ":memory:"
+        or url.query.get("uri")
+        or database.startswith("file:")
+    ):
+        return None
+    return Path(database)
+
+
+def make_engine(url: str) -> Engine:
+    """An engine for ``url``.
+
+    SQLite: ``~`` in the path is expanded, the file's directory is created, foreign keys are
+    enforced (``PRAGMA foreign_keys=ON``, off by default in SQLite), a connection waits up to
+    ``SQLITE_BUSY_TIMEOUT_MS`` for another process's lock, and every transaction, DDL
+    included, is a real SQLite transaction (SQLAlchemy's recipe for pysqlite). Other
+    backends: connections are checked before use (``pool_pre_ping``), so a long-running service
+    survives a server restart.
+
+    Raises ``UserError`` for a malformed URL, an unknown or missing driver, or a SQLite directory
+    that cannot be created.
+    """
+    try:
+        parsed = make_url(url)
+    except ArgumentError:
+        raise UserError(
+            f"malformed database URL {mask_url(url)!r}: expected e.g. "
+            "sqlite:////path/catenary.sqlite or postgresql+psycopg://user@host/database"
+        ) from None
+    options: dict[str, Any] = {}
+    sqlite_file = None
+    if parsed.get_backend_name() == "sqlite":
+        sqlite_file = _sqlite_file(parsed)
+        if sqlite_file is not None:
+            sqlite_file = sqlite_file.expanduser()
+            parsed = parsed.set(database=str(sqlite_file))
+    else:
+        options["pool_pre_ping"] = True
+    where = mask_url(parsed)
+    try:
+        engine = create_engine(parsed, **options)
+    except NoSuchModuleError:
+        raise UserError(
+            f"unknown database driver {parsed.drivername!r} in {where} "
+            "(known: sqlite, postgresql+psycopg)"
+        ) from None
+    except ImportError as exc:
+        raise UserError(
+            f"the driver of database {where} is not installed (module {exc.name})"
+        ) from None
+    except (ArgumentError, TypeError) as exc:
+        raise UserError(f"invalid database URL {where}: {one_line(exc)}") from None
+
+    if engine.dialect.name == "sqlite":
+        if sqlite_file is not None:
+            try:
+                sqlite_file.parent.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise UserError(
+                    f"cannot create the directory of database {where}: {exc.strerror}"
+                ) from None
+        event.listen(engine, "connect", _configure_sqlite_connection)
+        event.listen(engine, "begin", _begin_sqlite_transaction)
+    return engine
+
+
+def _configure_sqlite_connection(dbapi_connection: Any, connection_record: Any) -> None:
+    # Python's sqlite3 begins transactions itself, only before INSERT, UPDATE and DELETE, so
+    # DDL and reads would run outside them; let SQLAlchemy begin every transaction instead
+    # (_begin_sqlite_transaction): then a failed migration or unit of work leaves nothing.
+    dbapi_connection.isolation_level = None
+    cursor = dbapi_connection.cursor()
+    try:
+        cursor.execute("PRAGMA foreign_keys=ON")
+        cursor.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
+    finally:
+        cursor.close()
+
+
+def _begin_sqlite_transaction(connection: Connection) -> None:
+    connection.exec_driver_sql("BEGIN")
+
+
+@contextmanager
+def connected(engine: Engine) -> Iterator[Connection]:
+    """A connection of ``engine``; a failure to connect is a one-line ``UserError``."""
+    try:
+        connection = engine.connect()
+    except DBAPIError as exc:
+        raise UserError(
+            f"cannot connect to database {mask_url(engine.url)}: {one_line(exc)}"
+        ) from None
+    with connection:
+        yield connection
+
+
+@contextmanager
+def open_database(url: str, *, migrated: bool = True) -> Iterator[Engine]:
+    """An engine for ``url``, disposed of on exit; checked to be migrated unless told not to.
+
+    The usual start of a command::
+
+        with open_database(settings.database_url) as engine, session_scope(engine) as session:
+            ...
+    """
+    engine = make_engine(url)
+    try:
+        if migrated:
+            require_migrated(engine)
+        yield engine
+    finally:
+        engine.dispose()
+
+
+@contextmanager
+def session_scope(engine: Engine) -> Iterator[Session]:
+    """One unit of work: a session committed if the block succeeds, rolled back on any error.
+
+    Nothing of a failed block is written. Objects stay readable after the block
+    (``expire_on_commit=False``), detached from the closed session.
+    """
+    session = Session(engine, expire_on_commit=False)
+    try:
+        yield session
+        session.commit()
+    except BaseException:
+        session.rollback()
+        raise
+    finally:
+        session.close()
+
+
+def require_migrated(engine: Engine) -> None:
+    """Raise ``DatabaseNotMigrated`` unless the database is at the head revision.
+
+    The message is one line naming the database, its revision and the one needed, and what to
+    run. A database that cannot be reached is a ``UserError``.
+    """
+    # migrate imports this module (for ``connected``); import it here to keep that one-way
+    from catenary.storage import migrate
+
+    current = migrate.current_revision(engine)
+    head = migrate.head_revision()
+    if current == head:
+        return
+    where = mask_url(engine.url)
+    if current is None or migrate.is_known_revision(current):
+        raise DatabaseNotMigrated(
+            f"database {where} is not migrated (revision: {current or 'none'}, needed: {head}): "
+            "run 'catenary db upgrade'"
+        )
+    raise DatabaseNotMigrated(
+        f"database {where} is at revision {current}, unknown to this version of catenary "
+        f"(needed: {head}): it was migrated by a newer catenary; upgrade catenary to use it"
+    )

@@ -1,0 +1,445 @@
+"""SQLAlchemy models of the catenary database (the storage sketch of DESIGN.md).
+
+The schema is created and changed only by the Alembic migrations in ``catenary_migrations``
+(``catenary db upgrade``); ``Base.metadata.create_all`` is never used, and a test checks that
+these models and the migrations agree.
+
+Conventions:
+
+- lengths of wire geometry in millimetres, positions along the track in metres, as in
+  ``FORMATS.md``; every column carries its unit suffix;
+- wall-clock times are timezone-aware UTC ``datetime`` (``UTCDateTime``): naive values are
+  refused on write, and values read back are always aware, on SQLite as on PostgreSQL;
+- enumerations are short strings with a CHECK constraint (the allowed values are the tuples
+  below), so that both databases hold plain text and a new value is a migration;
+- every constraint and index has a name from ``NAMING_CONVENTION``, so migrations (and SQLite
+  batch mode) can refer to it.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from typing import Any, ClassVar
+
+from sqlalchemy import (
+    JSON,
+    CheckConstraint,
+    DateTime,
+    Dialect,
+    Float,
+    ForeignKey,
+    ForeignKeyConstraint,
+    Index,
+    Integer,
+    MetaData,
+    String,
+    Text,
+    UniqueConstraint,
+    event,
+    inspect,
+    select,
+)
+from sqlalchemy.dialects.postgresql import JSONB
+from sqlalchemy.engine import Connection
+from sqlalchemy.orm import DeclarativeBase, Mapped, Mapper, mapped_column, relationship
+from sqlalchemy.types import TypeDecorator
+
+NAMING_CONVENTION: dict[str, str] = {
+    "ix": "ix_%(table_name)s_%(column_0_N_name)s",
+    "uq": "uq_%(table_name)s_%(column_0_N_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_N_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+#: Tables that share the database but are not ours (APScheduler's job store): the comparison
+#: of models and migrations leaves them alone.
+EXTERNAL_TABLES: frozenset[str] = frozenset({"apscheduler_jobs"})
+
+RUN_DIRECTIONS = ("increasing", "decreasing")
+RUN_STATUSES = ("processing", "complete", "failed")
+ALERT_LEVELS = ("plan", "urgent", "critical")  # catenary.limits.LEVELS
+ALERT_KINDS = ("threshold", "forecast")
+ALERT_STATUSES = ("open", "acknowledged", "resolved")
+MAINTENANCE_KINDS = ("wire_replaced", "reinforced", "spliced", "inspected", "adjusted")
+NOTIFICATION_STATUSES = ("pending", "sent", "failed")
+
+CODE_LENGTH = 32  # line, track, mast codes and wire type names
+NAME_LENGTH = 200  # names of lines, vehicles, calibrations, people, rules, notifiers
+PATH_LENGTH = 1024
+SHA256_LENGTH = 64
+
+
+def one_of(column: str, values: tuple[str, ...]) -> str:
+    """SQL for a CHECK that ``column`` holds one of ``values``."""
+    return f"{column} IN ({', '.join(repr(value) for value in values)})"
+
+
+def utc_now() -> datetime:
+    return datetime.now(UTC)
+
+
+class UTCDateTime(TypeDecorator[datetime]):
+    """A timezone-aware UTC timestamp on every backend.
+
+    Stored as ``TIMESTAMP WITH TIME ZONE`` on PostgreSQL and as UTC text on SQLite (which has
+    no time zones). A naive ``datetime`` is refused rather than guessed.
+    """
+
+    impl = DateTime(timezone=True)
+    cache_ok = True
+
+    def process_bind_param(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None:
+            return None
+        if value.tzinfo is None or value.utcoffset() is None:
+            raise ValueError(f"naive datetime {value.isoformat()}: give a timezone (UTC)")
+        return value.astimezone(UTC)
+
+    def process_result_value(self, value: datetime | None, dialect: Dialect) -> datetime | None:
+        if value is None:
+            return None
+        if value.tzinfo is None:
+            return value.replace(tzinfo=UTC)
+        return value.astimezone(UTC)
+
+
+class Base(DeclarativeBase):
+    metadata = MetaData(naming_convention=NAMING_CONVENTION)
+    type_annotation_map: ClassVar[dict[Any, Any]] = {
+        datetime: UTCDateTime(),
+        # JSONB on PostgreSQL: comparable (DISTINCT, GROUP BY) and indexable, unlike json
+        dict[str, Any]: JSON().with_variant(JSONB(), "postgresql"),
+    }
+
+
+# --- the register ------------------------------------------------------------------------
+
+
+class Line(Base):
+    """A railway line of the register."""
+
+    __tablename__ = "lines"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    code: Mapped[str] = mapped_column(String(CODE_LENGTH), unique=True)
+    name: Mapped[str | None] = mapped_column(String(NAME_LENGTH))
+
+    tracks: Mapped[list[Track]] = relationship(
+        back_populates="line", cascade="all, delete-orphan", passive_deletes=True
+    )
+
+
+class Track(Base):
+    """A track of a line (its code is unique within the line)."""
+
+    __tablename__ = "tracks"
+    __table_args__ = (UniqueConstraint("line_id", "code"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    line_id: Mapped[int] = mapped_column(ForeignKey("lines.id", ondelete="CASCADE"))
+    code: Mapped[str] = mapped_column(String(CODE_LENGTH))
+
+    line: Mapped[Line] = relationship(back_populates="tracks")
+    masts: Mapped[list[Mast]] = relationship(
+        back_populates="track",
+        cascade="all, delete-orphan",
+        passive_deletes=True,
+        order_by="Mast.chainage_m",
+    )
+
+
+class Mast(Base):
+    """A mast of the register; a span runs from one mast to the next by chainage and has the
+    wire type of the mast at its start."""
+
+    __tablename__ = "masts"
+    __table_args__ = (
+        UniqueConstraint("track_id", "code"),
+        Index(None, "track_id", "chainage_m"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    track_id: Mapped[int] = mapped_column(ForeignKey("tracks.id", ondelete="CASCADE"))
+    code: Mapped[str] = mapped_column(String(CODE_LENGTH))
+    chainage_m: Mapped[float] = mapped_column(Float)
+    wire_type: Mapped[str] = mapped_column(String(CODE_LENGTH))
+    design_stagger_mm: Mapped[float | None] = mapped_column(Float)
+
+    track: Mapped[Track] = relationship(back_populates="masts")
+
+
+# --- vehicles and their calibrations --------------------------------------------------------
+
+
+class Vehicle(Base):
+    """An inspection vehicle and its body geometry (FORMATS.md, vehicle geometry)."""
+
+    __tablename__ = "vehicles"
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(NAME_LENGTH), unique=True)
+    roof_height_mm: Mapped[float] = mapped_column(Float)
+    sensor_height_mm: Mapped[float] = mapped_column(Float)
+    sensor_baseline_mm: Mapped[float] = mapped_column(Float)
+
+    rig_calibrations: Mapped[list[RigCalibration]] = relationship(
+        back_populates="vehicle",
+        cascade="all, delete-orphan",
+        passive_deletes=True,
+        order_by="(RigCalibration.name, RigCalibration.version)",
+    )
+
+
+class RigCalibration(Base):
+    """One version of a rig calibration of a vehicle: the TOML file as written by
+    ``catenary calibrate``, kept verbatim, and its SHA-256."""
+
+    __tablename__ = "rig_calibrations"
+    __table_args__ = (
+        UniqueConstraint("vehicle_id", "name", "version"),
+        CheckConstraint("version >= 1", name="version_positive"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    vehicle_id: Mapped[int] = mapped_column(ForeignKey("vehicles.id", ondelete="CASCADE"))
+    name: Mapped[str] = mapped_column(String(NAME_LENGTH))
+    version: Mapped[int] = mapped_column(Integer)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    content_toml: Mapped[str] = mapped_column(Text)
+    sha256: Mapped[str] = mapped_column(String(SHA256_LENGTH))
+
+    vehicle: Mapped[Vehicle] = relationship(back_populates="rig_calibrations")
+
+
+# --- runs and what they measured ------------------------------------------------------------
+
+
+class Run(Base):
+    """One inspection run processed from one recorded run file with one rig calibration.
+
+    The same file processed with the same calibration is stored once
+    (unique ``source_sha256``, ``rig_calibration_id``). ``samples_path`` is the Parquet file of
+    the full-resolution wear samples (the ``samples`` export columns), relative to the data
+    directory unless absolute.
+    """
+
+    __tablename__ = "runs"
+    __table_args__ = (
+        UniqueConstraint("source_sha256", "rig_calibration_id"),
+        # the target of span_measurements' (run_id, track_id) foreign key
+        UniqueConstraint("id", "track_id"),
+        Index(None, "line_id", "track_id", "started_at"),
+        CheckConstraint(one_of("direction", RUN_DIRECTIONS), name="direction"),
+        CheckConstraint(one_of("status", RUN_STATUSES), name="status"),
+        CheckConstraint("scans >= 0", name="scans_not_negative"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    line_id: Mapped[int] = mapped_column(ForeignKey("lines.id", ondelete="RESTRICT"))
+    track_id: Mapped[int | None] = mapped_column(ForeignKey("tracks.id", ondelete="RESTRICT"))
+    direction: Mapped[str] = mapped_column(String(16))
+    vehicle_id: Mapped[int] = mapped_column(ForeignKey("vehicles.id", ondelete="RESTRICT"))
+    rig_calibration_id: Mapped[int] = mapped_column(
+        ForeignKey("rig_calibrations.id", ondelete="RESTRICT")
+    )
+    source_file: Mapped[str] = mapped_column(String(PATH_LENGTH))
+    source_sha256: Mapped[str] = mapped_column(String(SHA256_LENGTH))
+    # the wire type given for the whole run; None when it comes from the mast register per span
+    wire_type: Mapped[str | None] = mapped_column(String(CODE_LENGTH))
+    started_at: Mapped[datetime]
+    processed_at: Mapped[datetime | None]
+    scans: Mapped[int] = mapped_column(Integer, default=0)
+    length_m: Mapped[float] = mapped_column(Float, default=0.0)
+    status: Mapped[str] = mapped_column(String(16), default="processing")
+    samples_path: Mapped[str | None] = mapped_column(String(PATH_LENGTH))
+    error: Mapped[str | None] = mapped_column(Text)
+
+    line: Mapped[Line] = relationship()
+    track: Mapped[Track | None] = relationship()
+    vehicle: Mapped[Vehicle] = relationship()
+    rig_calibration: Mapped[RigCalibration] = relationship()
+    span_measurements: Mapped[list[SpanMeasurement]] = relationship(
+        back_populates="run",
+        primaryjoin="Run.id == SpanMeasurement.run_id",
+        foreign_keys="SpanMeasurement.run_id",
+        cascade="all, delete-orphan",
+        passive_deletes=True,
+        order_by="(SpanMeasurement.span, SpanMeasurement.wire)",
+    )
+
+
+class SpanMeasurement(Base):
+    """One span and contact wire of one run: the ``spans`` export row (FORMATS.md).
+
+    ``track_id`` is the run's track, kept here so that measurements are found by track and
+    chainage across runs; a foreign key on ``(run_id, track_id)`` keeps it equal to the run's.
+    The ORM fills it from the run on insert; a bulk ``insert()`` must give it.
+    """
+
+    __tablename__ = "span_measurements"
+    __table_args__ = (
+        # its index, led by run_id, also serves look-ups by run
+        UniqueConstraint("run_id", "span", "wire"),
+        ForeignKeyConstraint(
+            ["run_id", "track_id"],
+            ["runs.id", "runs.track_id"],
+            ondelete="CASCADE",
+            onupdate="CASCADE",
+        ),
+        Index(None, "track_id", "start_chainage_m"),
+        CheckConstraint("wire >= 0", name="wire_not_negative"),
+        CheckConstraint("samples >= 0", name="samples_not_negative"),
+        CheckConstraint("end_chainage_m >= start_chainage_m", name="chainage_order"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"))
+    track_id: Mapped[int | None] = mapped_column(Integer)
+    span: Mapped[int] = mapped_column(Integer)
+    # mast codes; None when the span was found without a mast register
+    mast_from: Mapped[str | None] = mapped_column(String(CODE_LENGTH))
+    mast_to: Mapped[str | None] = mapped_column(String(CODE_LENGTH))
+    start_chainage_m: Mapped[float] = mapped_column(Float)
+    end_chainage_m: Mapped[float] = mapped_column(Float)
+    wire: Mapped[int] = mapped_column(Integer)
+    wire_type: Mapped[str] = mapped_column(String(CODE_LENGTH))
+    min_residual_thickness_mm: Mapped[float] = mapped_column(Float)
+    min_at_chainage_m: Mapped[float] = mapped_column(Float)
+    mean_residual_thickness_mm: Mapped[float] = mapped_column(Float)
+    height_min_mm: Mapped[float] = mapped_column(Float)
+    height_max_mm: Mapped[float] = mapped_column(Float)
+    stagger_min_mm: Mapped[float] = mapped_column(Float)
+    stagger_max_mm: Mapped[float] = mapped_column(Float)
+    samples: Mapped[int] = mapped_column(Integer)
+
+    run: Mapped[Run] = relationship(
+        back_populates="span_measurements",
+        primaryjoin="Run.id == SpanMeasurement.run_id",
+        foreign_keys=[run_id],
+    )
+
+
+@event.listens_for(SpanMeasurement, "before_insert")
+def _track_of_run(mapper: Mapper[Any], connection: Connection, target: SpanMeasurement) -> None:
+    """Copy the run's track onto a new span measurement that does not give one."""
+    if target.track_id is not None:
+        return
+    run = inspect(target).dict.get("run")  # loaded or assigned, never lazy-loaded in a flush
+    if isinstance(run, Run):
+        target.track_id = run.track_id
+    elif target.run_id is not None:
+        target.track_id = connection.scalar(select(Run.track_id).where(Run.id == target.run_id))
+
+
+# --- maintenance ----------------------------------------------------------------------------
+
+
+class MaintenanceAction(Base):
+    """Work done on the wire of a track between two chainages (all wires when ``wire`` is
+    None)."""
+
+    __tablename__ = "maintenance_actions"
+    __table_args__ = (
+        Index(None, "track_id", "from_chainage_m"),
+        CheckConstraint(one_of("kind", MAINTENANCE_KINDS), name="kind"),
+        CheckConstraint("to_chainage_m >= from_chainage_m", name="chainage_order"),
+        CheckConstraint("wire >= 0", name="wire_not_negative"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    track_id: Mapped[int] = mapped_column(ForeignKey("tracks.id", ondelete="RESTRICT"))
+    kind: Mapped[str] = mapped_column(String(32))
+    from_chainage_m: Mapped[float] = mapped_column(Float)
+    to_chainage_m: Mapped[float] = mapped_column(Float)
+    mast_from: Mapped[str | None] = mapped_column(String(CODE_LENGTH))
+    mast_to: Mapped[str | None] = mapped_column(String(CODE_LENGTH))
+    wire: Mapped[int | None] = mapped_column(Integer)
+    performed_at: Mapped[datetime]
+    recorded_by: Mapped[str] = mapped_column(String(NAME_LENGTH))
+    note: Mapped[str | None] = mapped_column(Text)
+
+    track: Mapped[Track] = relationship()
+
+
+class Alert(Base):
+    """A maintenance alert on a stretch of wire: a threshold crossed, or forecast to be.
+
+    ``condition_key`` identifies the condition (rule, track, wire, stretch, and whatever makes a
+    recurrence after repair a new condition): it is unique, so the same condition is never
+    raised twice. ``details`` holds what the rule wants to keep (e.g. a forecast's wear rate and
+    date).
+    """
+
+    __tablename__ = "alerts"
+    __table_args__ = (
+        Index(None, "status"),
+        Index(None, "track_id", "start_chainage_m"),
+        # the foreign keys that a deleted run or span measurement sets to NULL
+        Index(None, "span_measurement_id"),
+        Index(None, "resolved_by_run_id"),
+        CheckConstraint(one_of("level", ALERT_LEVELS), name="level"),
+        CheckConstraint(one_of("kind", ALERT_KINDS), name="kind"),
+        CheckConstraint(one_of("status", ALERT_STATUSES), name="status"),
+        CheckConstraint("end_chainage_m >= start_chainage_m", name="chainage_order"),
+        CheckConstraint("wire >= 0", name="wire_not_negative"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    track_id: Mapped[int] = mapped_column(ForeignKey("tracks.id", ondelete="RESTRICT"))
+    wire: Mapped[int] = mapped_column(Integer)
+    mast_from: Mapped[str | None] = mapped_column(String(CODE_LENGTH))
+    mast_to: Mapped[str | None] = mapped_column(String(CODE_LENGTH))
+    start_chainage_m: Mapped[float] = mapped_column(Float)
+    end_chainage_m: Mapped[float] = mapped_column(Float)
+    span_measurement_id: Mapped[int | None] = mapped_column(
+        ForeignKey("span_measurements.id", ondelete="SET NULL")
+    )
+    rule: Mapped[str] = mapped_column(String(NAME_LENGTH))
+    level: Mapped[str] = mapped_column(String(16))
+    kind: Mapped[str] = mapped_column(String(16))
+    value: Mapped[float] = mapped_column(Float)
+    threshold: Mapped[float] = mapped_column(Float)
+    status: Mapped[str] = mapped_column(String(16), default="open")
+    raised_at: Mapped[datetime] = mapped_column(default=utc_now)
+    acknowledged_by: Mapped[str | None] = mapped_column(String(NAME_LENGTH))
+    acknowledged_at: Mapped[datetime | None]
+    resolved_at: Mapped[datetime | None]
+    resolved_by_run_id: Mapped[int | None] = mapped_column(
+        ForeignKey("runs.id", ondelete="SET NULL")
+    )
+    resolved_by_action_id: Mapped[int | None] = mapped_column(
+        ForeignKey("maintenance_actions.id", ondelete="SET NULL")
+    )
+    condition_key: Mapped[str] = mapped_column(String(255), unique=True)
+    details: Mapped[dict[str, Any] | None]
+
+    track: Mapped[Track] = relationship()
+    span_measurement: Mapped[SpanMeasurement | None] = relationship()
+    resolved_by_run: Mapped[Run | None] = relationship()
+    resolved_by_action: Mapped[MaintenanceAction | None] = relationship()
+    notifications: Mapped[list[AlertNotification]] = relationship(
+        back_populates="alert", cascade="all, delete-orphan", passive_deletes=True
+    )
+
+
+class AlertNotification(Base):
+    """The delivery of one alert by one notifier, retried until sent."""
+
+    __tablename__ = "alert_notifications"
+    __table_args__ = (
+        UniqueConstraint("alert_id", "notifier"),
+        Index(None, "status"),
+        CheckConstraint(one_of("status", NOTIFICATION_STATUSES), name="status"),
+        CheckConstraint("attempts >= 0", name="attempts_not_negative"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    alert_id: Mapped[int] = mapped_column(ForeignKey("alerts.id", ondelete="CASCADE"))
+    notifier: Mapped[str] = mapped_column(String(NAME_LENGTH))
+    status: Mapped[str] = mapped_column(String(16), default="pending")
+    attempts: Mapped[int] = mapped_column(Integer, default=0)
+    last_error: Mapped[str | None] = mapped_column(Text)
+    updated_at: Mapped[datetime] = mapped_column(default=utc_now, onupdate=utc_now)
+
+    alert: Mapped[Alert] = relationship(back_populates="notifications")

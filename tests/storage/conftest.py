@@ -1,0 +1,174 @@
+"""Databases for the storage tests: a SQLite file, and PostgreSQL when CI gives one.
+
+Each PostgreSQL test gets a schema of its own (``search_path`` set in the URL), dropped with
+everything in it, ``alembic_version`` included, when the test ends: tests never see each
+other's tables, nor leave any for other suites.
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from collections.abc import Iterator
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import pytest
+from sqlalchemy import Engine, create_engine
+from sqlalchemy.engine import make_url
+from sqlalchemy.orm import Session
+
+from catenary.storage import migrate
+from catenary.storage.database import make_engine
+from catenary.storage.models import (
+    Alert,
+    Line,
+    Mast,
+    RigCalibration,
+    Run,
+    SpanMeasurement,
+    Track,
+    Vehicle,
+)
+
+POSTGRES_ENV = "CATENARY_TEST_DATABASE_URL"
+
+
+@pytest.fixture(
+    params=["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)],
+)
+def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
+    """The URL of an empty database, on each backend."""
+    if request.param == "sqlite":
+        yield f"sqlite:///{tmp_path / 'data' / 'catenary.sqlite'}"
+        return
+    base = os.environ.get(POSTGRES_ENV)
+    if not base:
+        pytest.skip(f"{POSTGRES_ENV} is not set")
+    schema = f"catenary_test_{uuid.uuid4().hex[:16]}"
+    admin = create_engine(base)
+    try:
+        with admin.begin() as connection:
+            connection.exec_driver_sql(f'CREATE SCHEMA "{schema}"')
+        url = make_url(base).update_query_dict({"options": f"-csearch_path={schema}"})
+        yield url.render_as_string(hide_password=False)
+    finally:
+        with admin.begin() as connection:
+            # a connection a test left in a transaction fails the test instead of hanging it
+            connection.exec_driver_sql("SET LOCAL lock_timeout = '20s'")
+            connection.exec_driver_sql(f'DROP SCHEMA IF EXISTS "{schema}" CASCADE')
+        admin.dispose()
+
+
+@pytest.fixture
+def engine(database_url: str) -> Iterator[Engine]:
+    """An engine on the empty database."""
+    engine = make_engine(database_url)
+    yield engine
+    engine.dispose()
+
+
+@pytest.fixture
+def migrated(engine: Engine) -> Engine:
+    """The engine, its database migrated to head."""
+    migrate.upgrade(engine)
+    return engine
+
+
+T0 = datetime(2024, 5, 6, 7, 8, 9, tzinfo=UTC)
+
+
+class Build:
+    """Rows for the tests, valid by default; keyword arguments override any column."""
+
+    T0 = T0
+
+    @staticmethod
+    def run(session: Session, **columns: Any) -> Run:
+        """A line, its track with two masts, a vehicle, a calibration and a run on them."""
+        line = Line(code="L100", name="Test line")
+        track = Track(line=line, code="1")
+        track.masts = [
+            Mast(code="M1", chainage_m=1000.0, wire_type="CTA120", design_stagger_mm=200.0),
+            Mast(code="M2", chainage_m=1050.0, wire_type="CTA120"),
+        ]
+        vehicle = Vehicle(
+            name="demo-rig",
+            roof_height_mm=3900.0,
+            sensor_height_mm=1100.0,
+            sensor_baseline_mm=1800.0,
+        )
+        calibration = RigCalibration(
+            vehicle=vehicle,
+            name="demo",
+            version=1,
+            created_at=T0,
+            content_toml='name = "demo-rig"\n',
+            sha256="c" * 64,
+        )
+        values: dict[str, Any] = {
+            "line": line,
+            "track": track,
+            "direction": "increasing",
+            "vehicle": vehicle,
+            "rig_calibration": calibration,
+            "source_file": "/runs/2024-05-06.h5",
+            "source_sha256": "f" * 64,
+            "wire_type": "CTA120",
+            "started_at": T0,
+        }
+        values.update(columns)
+        run = Run(**values)
+        session.add(run)
+        session.flush()
+        return run
+
+    @staticmethod
+    def span(run: Run | None, number: int = 0, **columns: Any) -> SpanMeasurement:
+        values: dict[str, Any] = {} if run is None else {"run": run}
+        values |= {
+            "span": number,
+            "mast_from": "M1",
+            "mast_to": "M2",
+            "start_chainage_m": 1000.0 + 50.0 * number,
+            "end_chainage_m": 1050.0 + 50.0 * number,
+            "wire": 0,
+            "wire_type": "CTA120",
+            "min_residual_thickness_mm": 10.5,
+            "min_at_chainage_m": 1012.25 + 50.0 * number,
+            "mean_residual_thickness_mm": 11.75,
+            "height_min_mm": 5290.0,
+            "height_max_mm": 5340.0,
+            "stagger_min_mm": -210.0,
+            "stagger_max_mm": 195.5,
+            "samples": 2500,
+        }
+        values.update(columns)
+        return SpanMeasurement(**values)
+
+    @staticmethod
+    def alert(track: Track, condition_key: str, **columns: Any) -> Alert:
+        values: dict[str, Any] = {
+            "track": track,
+            "wire": 0,
+            "mast_from": "M1",
+            "mast_to": "M2",
+            "start_chainage_m": 1000.0,
+            "end_chainage_m": 1050.0,
+            "rule": "db-ril-997#1",
+            "level": "urgent",
+            "kind": "threshold",
+            "value": 9.9,
+            "threshold": 10.0,
+            "raised_at": T0,
+            "condition_key": condition_key,
+        }
+        values.update(columns)
+        return Alert(**values)
+
+
+@pytest.fixture
+def build() -> type[Build]:
+    """Row builders (``build.run(session)``, ``build.span(run)``, ``build.alert(...)``)."""
+    return Build

@@ -1,0 +1,141 @@
+"""``catenary db`` as a user meets it: what was done, one-line errors, non-zero exits."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+import sqlalchemy as sa
+from click.testing import CliRunner, Result
+from sqlalchemy.engine import make_url
+
+from catenary.cli import cli
+from catenary.storage import migrate
+
+HEAD = migrate.head_revision()
+Catenary = Callable[..., Result]
+
+
+@pytest.fixture
+def catenary(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Catenary:
+    """Run ``catenary ARGS...`` in-process, away from the user's config and data."""
+    config = tmp_path / "config.toml"
+    config.write_text("")
+    monkeypatch.setenv("CATENARY_CONFIG", str(config))
+    monkeypatch.setenv("CATENARY_DATA_DIR", str(tmp_path / "data"))
+    monkeypatch.delenv("CATENARY_DATABASE_URL", raising=False)
+
+    def run(*args: str) -> Result:
+        return CliRunner().invoke(cli, list(args))
+
+    return run
+
+
+def shown(url: str) -> str:
+    return make_url(url).render_as_string(hide_password=True)
+
+
+def assert_one_line_error(result: Result) -> None:
+    assert result.exit_code == 1, result.output
+    assert isinstance(result.exception, SystemExit)  # not an uncaught exception
+    assert "Traceback" not in result.output
+    assert len(result.output.strip().splitlines()) == 1, result.output
+    assert result.output.startswith("Error: ")
+
+
+def test_upgrade_current_check_downgrade(catenary: Catenary, database_url: str) -> None:
+    where = shown(database_url)
+
+    result = catenary("--db", database_url, "db", "current")
+    assert result.exit_code == 0, result.output
+    assert result.output == f"database {where} is not migrated: run 'catenary db upgrade'\n"
+
+    result = catenary("--db", database_url, "db", "upgrade")
+    assert result.exit_code == 0, result.output
+    assert result.output == f"database {where} upgraded to {HEAD} (head)\n"
+
+    result = catenary("--db", database_url, "db", "upgrade")
+    assert result.exit_code == 0, result.output
+    assert result.output == f"database {where} is already at {HEAD} (head)\n"
+
+    result = catenary("--db", database_url, "db", "current")
+    assert result.exit_code == 0, result.output
+    assert result.output == f"database {where} is at {HEAD} (head)\n"
+
+    result = catenary("--db", database_url, "db", "check")
+    assert result.exit_code == 0, result.output
+    assert result.output == f"database {where} matches the models at {HEAD} (head)\n"
+
+    result = catenary("--db", database_url, "db", "downgrade", "base")
+    assert result.exit_code == 0, result.output
+    assert result.output == f"database {where} downgraded to base (no schema)\n"
+
+
+def test_check_on_a_database_that_is_not_migrated(catenary: Catenary, database_url: str) -> None:
+    result = catenary("--db", database_url, "db", "check")
+    assert_one_line_error(result)
+    assert result.output == (
+        f"Error: database {shown(database_url)} is not migrated "
+        f"(revision: none, needed: {HEAD}): run 'catenary db upgrade'\n"
+    )
+
+
+def test_check_reports_differences_and_fails(catenary: Catenary, database_url: str) -> None:
+    assert catenary("--db", database_url, "db", "upgrade").exit_code == 0
+    engine = sa.create_engine(database_url)
+    with engine.begin() as connection:
+        connection.execute(sa.text("DROP INDEX ix_runs_line_id_track_id_started_at"))
+    engine.dispose()
+    result = catenary("--db", database_url, "db", "check")
+    assert result.exit_code == 1
+    assert "differs from the models" in result.stderr
+    assert "add_index Index ix_runs_line_id_track_id_started_at" in result.stderr
+
+
+def test_upgrade_to_an_unknown_revision(catenary: Catenary, database_url: str) -> None:
+    result = catenary("--db", database_url, "db", "upgrade", "nosuchrev")
+    assert_one_line_error(result)
+    assert "nosuchrev" in result.output
+
+
+@pytest.mark.parametrize(
+    ("url", "message"),
+    [
+        ("nonsense://x", "Error: unknown database driver 'nonsense' in nonsense://x"),
+        ("nonsense", "Error: malformed database URL 'nonsense'"),
+        (
+            "postgresql+psycopg://fleet:s3cret@127.0.0.1:1/catenary",
+            "Error: cannot connect to database "
+            "postgresql+psycopg://fleet:***@127.0.0.1:1/catenary: ",
+        ),
+    ],
+)
+@pytest.mark.parametrize("command", [["current"], ["upgrade"], ["check"], ["downgrade", "base"]])
+def test_bad_database_is_one_line(
+    catenary: Catenary, url: str, message: str, command: list[str]
+) -> None:
+    result = catenary("--db", url, "db", *command)
+    assert_one_line_error(result)
+    assert result.output.startswith(message)
+    assert "s3cret" not in result.output
+
+
+def test_default_database_is_a_sqlite_file_in_the_data_directory(
+    catenary: Catenary, tmp_path: Path
+) -> None:
+    result = catenary("db", "upgrade")
+    assert result.exit_code == 0, result.output
+    path = tmp_path / "data" / "catenary.sqlite"
+    assert result.output == f"database sqlite:///{path} upgraded to {HEAD} (head)\n"
+    assert path.is_file()
+
+
+def test_database_from_the_environment(
+    catenary: Catenary, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "fleet" / "fleet.sqlite"
+    monkeypatch.setenv("CATENARY_DATABASE_URL", f"sqlite:///{path}")
+    result = catenary("db", "upgrade")
+    assert result.exit_code == 0, result.output
+    assert path.is_file()

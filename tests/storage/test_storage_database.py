@@ -1,0 +1,134 @@
+"""Engines: URLs, SQLite set-up, and the one-line errors a user can cause."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import sqlalchemy as sa
+
+from catenary.errors import DatabaseNotMigrated, UserError
+from catenary.storage import migrate
+from catenary.storage.database import (
+    make_engine,
+    mask_url,
+    open_database,
+    require_migrated,
+)
+
+UNREACHABLE = "postgresql+psycopg://fleet:s3cret@127.0.0.1:1/catenary"
+
+
+@pytest.mark.parametrize(
+    ("url", "masked"),
+    [
+        (UNREACHABLE, "postgresql+psycopg://fleet:***@127.0.0.1:1/catenary"),
+        ("sqlite:////data/catenary.sqlite", "sqlite:////data/catenary.sqlite"),
+        ("bad//user:s3cret@host", "bad//user:***@host"),
+    ],
+)
+def test_mask_url(url: str, masked: str) -> None:
+    assert mask_url(url) == masked
+
+
+@pytest.mark.parametrize(
+    ("url", "message"),
+    [
+        ("nonsense", "malformed database URL 'nonsense'"),
+        ("nonsense://x", "unknown database driver 'nonsense' in nonsense://x"),
+        ("postgresql+nodriver://u:s3cret@h/d", "unknown database driver 'postgresql+nodriver'"),
+        ("mysql+mysqldb://u:s3cret@h/d", "mysql+mysqldb://u:***@h/d is not installed"),
+    ],
+)
+def test_bad_url_is_one_line_with_password_masked(url: str, message: str) -> None:
+    with pytest.raises(UserError) as raised:
+        make_engine(url)
+    assert message in str(raised.value)
+    assert "\n" not in str(raised.value)
+    assert "s3cret" not in str(raised.value)
+
+
+def test_unreachable_server_is_one_line_with_password_masked() -> None:
+    engine = make_engine(UNREACHABLE)
+    try:
+        with pytest.raises(UserError) as raised:
+            require_migrated(engine)
+    finally:
+        engine.dispose()
+    message = str(raised.value)
+    assert message.startswith(
+        "cannot connect to database postgresql+psycopg://fleet:***@127.0.0.1:1/catenary: "
+    )
+    assert "\n" not in message
+    assert "s3cret" not in message
+
+
+def test_sqlite_creates_the_directory_and_enforces_foreign_keys(tmp_path: Path) -> None:
+    path = tmp_path / "a" / "b" / "catenary.sqlite"
+    engine = make_engine(f"sqlite:///{path}")
+    try:
+        assert path.parent.is_dir()
+        with engine.connect() as connection:
+            assert connection.exec_driver_sql("PRAGMA foreign_keys").scalar() == 1
+            assert (connection.exec_driver_sql("PRAGMA busy_timeout").scalar() or 0) >= 10_000
+    finally:
+        engine.dispose()
+    assert path.is_file()
+
+
+def test_sqlite_expands_the_home_directory(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("HOME", str(tmp_path))
+    engine = make_engine("sqlite:///~/catenary/catenary.sqlite")
+    try:
+        assert engine.url.database == str(tmp_path / "catenary" / "catenary.sqlite")
+        assert (tmp_path / "catenary").is_dir()
+    finally:
+        engine.dispose()
+
+
+def test_sqlite_directory_that_cannot_be_made(tmp_path: Path) -> None:
+    (tmp_path / "file").write_text("not a directory")
+    with pytest.raises(UserError, match="cannot create the directory of database sqlite:///"):
+        make_engine(f"sqlite:///{tmp_path / 'file' / 'catenary.sqlite'}")
+
+
+def test_sqlite_file_that_is_not_a_database(tmp_path: Path) -> None:
+    path = tmp_path / "catenary.sqlite"
+    path.write_bytes(b"this is not a database, just some text " * 100)
+    engine = make_engine(f"sqlite:///{path}")
+    try:
+        with pytest.raises(UserError, match=f"database sqlite:///{path}") as raised:
+            require_migrated(engine)
+        assert "\n" not in str(raised.value)
+    finally:
+        engine.dispose()
+
+
+def test_sqlite_in_memory() -> None:
+    engine = make_engine("sqlite://")
+    try:
+        with engine.connect() as connection:
+            assert connection.exec_driver_sql("PRAGMA foreign_keys").scalar() == 1
+    finally:
+        engine.dispose()
+
+
+def test_sqlite_ddl_is_transactional(tmp_path: Path) -> None:
+    """Python's sqlite3 runs DDL outside transactions unless told otherwise."""
+    engine = make_engine(f"sqlite:///{tmp_path / 'x.sqlite'}")
+    try:
+        with pytest.raises(RuntimeError), engine.begin() as connection:
+            connection.exec_driver_sql("CREATE TABLE t (id INTEGER)")
+            raise RuntimeError
+        assert sa.inspect(engine).get_table_names() == []
+    finally:
+        engine.dispose()
+
+
+def test_open_database_checks_the_migration(database_url: str) -> None:
+    with pytest.raises(DatabaseNotMigrated), open_database(database_url):
+        pass
+    with open_database(database_url, migrated=False) as engine:
+        migrate.upgrade(engine)
+    with open_database(database_url) as engine:
+        assert migrate.current_revision(engine) == migrate.head_revision()
