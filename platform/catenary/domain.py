@@ -86,3 +86,28 @@ class RunHeader:
     scans: int
     camera_pixels: dict[str, int]
     camera_bit_depth: dict[str, int]
+
+
+@dataclass(frozen=True)
+class WireObservations:
+    """Contact wire observations from a processor, one row per scan and wire, each ``[m]``.
+
+    ``scan`` is the scan's index in the run, ``wire`` the wire number (stable along the run:
+    a wire keeps its number from where it enters the view to where it leaves). Positions are
+    in the roof frame [mm], ``z`` the contact point (the bottom of the worn face).
+    ``wear_width_mm`` is the worn face's width in the scanning plane, before the stagger-angle
+    correction; ``cameras`` how many cameras confirmed the point; ``reprojection_rms_px`` the
+    triangulation's residual.
+    """
+
+    scan: NDArray[np.int64]
+    wire: NDArray[np.int64]
+    x_roof_mm: FloatArray
+    z_roof_mm: FloatArray
+    wear_width_mm: FloatArray
+    cameras: NDArray[np.int64]
+    reprojection_rms_px: FloatArray
+
+    @property
+    def rows(self) -> int:
+        return int(self.scan.shape[0])
