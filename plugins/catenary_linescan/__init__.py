@@ -1,1 +1,31 @@
-"""Line-scan stereovision: camera model, calibration, simulator and processor (the paper)."""
+"""Line-scan stereovision (the paper's method): camera model, calibration, simulator, processor.
+
+Registers the ``calibrate`` and ``simulate`` commands and the ``simulator`` acquisition source.
+Modules are imported inside the hooks so that the registry reports a failure here by name.
+"""
+
+from __future__ import annotations
+
+from catenary import hookimpl
+from catenary.registrations import Command, Source
+
+
+@hookimpl
+def catenary_commands() -> list[Command]:
+    from catenary_linescan.calibrate import calibrate
+    from catenary_linescan.simulator.command import simulate
+
+    return [Command("calibrate", calibrate), Command("simulate", simulate)]
+
+
+@hookimpl
+def catenary_sources() -> list[Source]:
+    from catenary_linescan.simulator.source import open_simulation
+
+    return [
+        Source(
+            "simulator",
+            "Physical line-scan simulator: a generated section of line, rendered per camera",
+            open_simulation,
+        )
+    ]
