@@ -32,6 +32,7 @@ from scipy import ndimage
 from catenary.domain import CameraLines
 from catenary.errors import FormatError, UserError
 
+from .calibration import direct_linear_transform
 from .camera import LineScanCamera
 
 __all__ = [
@@ -921,6 +922,78 @@ def assign_targets(
     return result
 
 
+def bootstrap_camera(
+    centres_px: Sequence[ArrayLike],
+    target_x_mm: ArrayLike,
+    heights_mm: ArrayLike,
+    pixels: int,
+    *,
+    name: str = "",
+) -> LineScanCamera | None:
+    """An approximate camera from the detections alone, when no nominal camera is known.
+
+    At the two bar heights with the most detections, the detections (in order along the line)
+    are taken to be a contiguous run of the targets (in order of ``x``, either direction):
+    the field of view cuts the bar at its ends. Every such pair of runs gives a DLT camera;
+    each is scored by how many detections at *all* heights lie within a third of a target
+    spacing of its predicted targets (then by their RMS distance). A shift by one target fits
+    two heights nearly as well as the truth, but predicts the other heights wrongly, so the
+    best-scoring camera is the true one up to the DLT's error. Returns None when fewer than
+    two heights have three or more detections.
+
+    Parameters
+    ----------
+    centres_px : sequence of array_like, each shape (k_h,)
+        Detected face centres at each bar height [px].
+    target_x_mm : array_like, shape (T,)
+        Targets' roof-frame ``x`` [mm].
+    heights_mm : array_like, shape (H,)
+        Bar heights [mm], one per entry of ``centres_px``.
+    pixels : int
+        Pixels on the line.
+    name : str
+        Camera name of the result.
+    """
+    targets = np.sort(np.asarray(target_x_mm, dtype=np.float64))
+    heights = np.asarray(heights_mm, dtype=np.float64)
+    lines = [np.sort(np.asarray(c, dtype=np.float64)) for c in centres_px]
+    counts = np.array([line.shape[0] for line in lines])
+    seeds = np.argsort(-counts, kind="stable")[:2]
+    if seeds.shape[0] < 2 or counts[seeds].min() < 3:
+        return None
+    best: tuple[int, float] | None = None
+    chosen: LineScanCamera | None = None
+    for order in (targets, targets[::-1]):
+        runs = [
+            [order[s : s + counts[h]] for s in range(targets.shape[0] - counts[h] + 1)]
+            for h in seeds
+        ]
+        for first in runs[0]:
+            for second in runs[1]:
+                x = np.concatenate([first, second])
+                z = np.repeat(heights[seeds], counts[seeds])
+                u = np.concatenate([lines[seeds[0]], lines[seeds[1]]])
+                matrix, conditioning = direct_linear_transform(x, z, u)
+                if conditioning < 1e-12:
+                    continue
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    camera = LineScanCamera(name, pixels, matrix)
+                    predicted = camera.project(targets[np.newaxis, :], heights[:, np.newaxis])
+                matched, squares = 0, 0.0
+                for line, row in zip(lines, predicted, strict=True):
+                    if line.shape[0] == 0 or not np.all(np.isfinite(row)):
+                        continue
+                    tolerance = np.min(np.abs(np.diff(np.sort(row)))) / 3.0
+                    distance = np.min(np.abs(line[:, np.newaxis] - row[np.newaxis, :]), axis=1)
+                    close = distance < tolerance
+                    matched += int(np.count_nonzero(close))
+                    squares += float(np.sum(distance[close] ** 2))
+                score = (matched, -squares / max(matched, 1))
+                if best is None or score > best:
+                    best, chosen = score, camera
+    return chosen
+
+
 @dataclass(frozen=True, eq=False)
 class TargetMeasurements:
     """One camera's measured targets over a capture; NaN where a target was not seen.
@@ -992,6 +1065,14 @@ def measure_capture(
             )
             for row in range(n_heights)
         ]
+        if approximate is None and any(f[0].shape[0] != n_targets for f in found):
+            approximate = bootstrap_camera(
+                [f[0] for f in found],
+                capture.target_x_mm,
+                capture.heights_mm,
+                lines.lines.shape[1],
+                name=name,
+            )
         mapping = None
         if approximate is not None:
             mapping = estimate_target_mapping(

@@ -23,6 +23,8 @@ Layout (FORMATS.md "Rig calibration", version 1 of this project's extension)::
     z_mm = [...]                     # (nz,) increasing
     mm_per_px = [[...], ...]         # (nz, nx)
     filled = [[false, ...], ...]     # optional (nz, nx): nodes interpolated, not measured
+    [cameras.measured_resolution]    # optional, same keys: the paper's table measured from
+                                     # the targets' face widths, kept as a cross-check
 
 Extra keys are ignored. Errors name the file and the key (``FormatError``).
 """
@@ -61,6 +63,7 @@ class RigCamera:
     resolution: ResolutionTable
     reprojection_rms_px: float = math.nan
     reprojection_max_px: float = math.nan
+    measured_resolution: ResolutionTable | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,21 +80,26 @@ class Rig:
         return [c.camera for c in self.cameras.values()]
 
 
+def _table_to_toml(table: ResolutionTable) -> dict[str, Any]:
+    return {
+        "x_mm": table.x_mm.tolist(),
+        "z_mm": table.z_mm.tolist(),
+        "mm_per_px": np.round(table.mm_per_px, 8).tolist(),
+        "filled": table.filled.tolist(),
+    }
+
+
 def _to_toml(rig: Rig) -> dict[str, Any]:
     cameras = []
     for rig_camera in rig.cameras.values():
-        table = rig_camera.resolution
         entry = rig_camera.camera.to_dict()
         for key in ("reprojection_rms_px", "reprojection_max_px"):
             value = getattr(rig_camera, key)
             if math.isfinite(value):
                 entry[key] = round(float(value), 6)
-        entry["resolution"] = {
-            "x_mm": table.x_mm.tolist(),
-            "z_mm": table.z_mm.tolist(),
-            "mm_per_px": np.round(table.mm_per_px, 8).tolist(),
-            "filled": table.filled.tolist(),
-        }
+        entry["resolution"] = _table_to_toml(rig_camera.resolution)
+        if rig_camera.measured_resolution is not None:
+            entry["measured_resolution"] = _table_to_toml(rig_camera.measured_resolution)
         cameras.append(entry)
     return {
         "format": RIG_FORMAT,
@@ -139,6 +147,24 @@ def _optional_number(
     return float(value)
 
 
+def _table(path: Path, raw: Any, where: str) -> ResolutionTable:
+    if not isinstance(raw, dict):
+        raise FormatError(path, f"{where} must be a table")
+    for key in ("x_mm", "z_mm", "mm_per_px"):
+        if key not in raw:
+            raise FormatError(path, f"missing key {where}.{key}")
+    x = _array(path, raw["x_mm"], f"{where}.x_mm", 1)
+    z = _array(path, raw["z_mm"], f"{where}.z_mm", 1)
+    values = _array(path, raw["mm_per_px"], f"{where}.mm_per_px", 2)
+    filled = np.asarray(raw.get("filled", np.zeros(values.shape, dtype=bool)))
+    if np.any(values <= 0):
+        raise FormatError(path, f"{where}.mm_per_px must be positive")
+    try:
+        return ResolutionTable(x, z, values, filled.astype(bool))
+    except ValueError as exc:
+        raise FormatError(path, f"{where}: {exc}") from None
+
+
 def _camera(path: Path, raw: Any, index: int) -> RigCamera:
     where = f"cameras[{index}]."
     if not isinstance(raw, dict):
@@ -163,27 +189,17 @@ def _camera(path: Path, raw: Any, index: int) -> RigCamera:
     resolution = raw.get("resolution")
     if resolution is None:
         table = resolution_table_from_camera(camera, DEFAULT_TABLE_X_MM, DEFAULT_TABLE_Z_MM)
-    elif not isinstance(resolution, dict):
-        raise FormatError(path, f"{where}resolution must be a table")
     else:
-        for key in ("x_mm", "z_mm", "mm_per_px"):
-            if key not in resolution:
-                raise FormatError(path, f"missing key {where}resolution.{key}")
-        x = _array(path, resolution["x_mm"], f"{where}resolution.x_mm", 1)
-        z = _array(path, resolution["z_mm"], f"{where}resolution.z_mm", 1)
-        values = _array(path, resolution["mm_per_px"], f"{where}resolution.mm_per_px", 2)
-        filled = np.asarray(resolution.get("filled", np.zeros(values.shape, dtype=bool)))
-        if np.any(values <= 0):
-            raise FormatError(path, f"{where}resolution.mm_per_px must be positive")
-        try:
-            table = ResolutionTable(x, z, values, filled.astype(bool))
-        except ValueError as exc:
-            raise FormatError(path, f"{where}resolution: {exc}") from None
+        table = _table(path, resolution, f"{where}resolution")
+    measured = raw.get("measured_resolution")
     return RigCamera(
         camera=camera,
         resolution=table,
         reprojection_rms_px=_optional_number(path, raw, "reprojection_rms_px", where),
         reprojection_max_px=_optional_number(path, raw, "reprojection_max_px", where),
+        measured_resolution=None
+        if measured is None
+        else _table(path, measured, f"{where}measured_resolution"),
     )
 
 
