@@ -1,0 +1,76 @@
+"""Vehicles and their rig calibrations in the database (versioned, stored verbatim)."""
+
+from __future__ import annotations
+
+import hashlib
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from catenary.domain import VehicleGeometry
+from catenary.errors import UserError
+from catenary.storage.models import RigCalibration, Vehicle
+
+GEOMETRY_TOLERANCE_MM = 1e-6
+
+
+def register_vehicle(session: Session, geometry: VehicleGeometry) -> Vehicle:
+    """The vehicle called ``geometry.name``, added if new.
+
+    A vehicle already registered under that name with another geometry is refused (a
+    ``UserError`` naming the field): runs measured with the old geometry must stay
+    reproducible, so give the rebuilt vehicle a new name.
+    """
+    vehicle = session.scalars(select(Vehicle).where(Vehicle.name == geometry.name)).one_or_none()
+    if vehicle is None:
+        vehicle = Vehicle(
+            name=geometry.name,
+            roof_height_mm=geometry.roof_height_mm,
+            sensor_height_mm=geometry.sensor_height_mm,
+            sensor_baseline_mm=geometry.sensor_baseline_mm,
+        )
+        session.add(vehicle)
+        session.flush()
+        return vehicle
+    for field in ("roof_height_mm", "sensor_height_mm", "sensor_baseline_mm"):
+        stored, given = getattr(vehicle, field), getattr(geometry, field)
+        if abs(stored - given) > GEOMETRY_TOLERANCE_MM:
+            raise UserError(
+                f"vehicle {geometry.name!r} is registered with {field} = {stored}, "
+                f"not {given}: give the changed vehicle a new name"
+            )
+    return vehicle
+
+
+def register_rig_calibration(
+    session: Session, geometry: VehicleGeometry, name: str, content_toml: str
+) -> RigCalibration:
+    """The stored rig calibration with this content, or a new version of ``name``.
+
+    The same file content (by SHA-256) for the same vehicle is stored once; a changed file of
+    the same name becomes the next version.
+    """
+    vehicle = register_vehicle(session, geometry)
+    digest = hashlib.sha256(content_toml.encode("utf-8")).hexdigest()
+    existing = session.scalars(
+        select(RigCalibration).where(
+            RigCalibration.vehicle_id == vehicle.id, RigCalibration.sha256 == digest
+        )
+    ).first()
+    if existing is not None:
+        return existing
+    latest = session.scalar(
+        select(func.max(RigCalibration.version)).where(
+            RigCalibration.vehicle_id == vehicle.id, RigCalibration.name == name
+        )
+    )
+    calibration = RigCalibration(
+        vehicle=vehicle,
+        name=name,
+        version=(latest or 0) + 1,
+        content_toml=content_toml,
+        sha256=digest,
+    )
+    session.add(calibration)
+    session.flush()
+    return calibration
