@@ -1,7 +1,8 @@
 """Line-scan stereovision (the paper's method): camera model, calibration, simulator, processor.
 
-Registers the ``calibrate`` and ``simulate`` commands and the ``simulator`` acquisition source.
-Modules are imported inside the hooks so that the registry reports a failure here by name.
+Registers the ``calibrate``, ``demo`` and ``simulate`` commands and the ``simulator``
+acquisition source. Modules are imported inside the hooks so that the registry reports a
+failure here by name.
 """
 
 from __future__ import annotations
@@ -13,9 +14,10 @@ from catenary.registrations import Command, Source
 @hookimpl
 def catenary_commands() -> list[Command]:
     from catenary_linescan.calibrate import calibrate
+    from catenary_linescan.demo import demo
     from catenary_linescan.simulator.command import simulate
 
-    return [Command("calibrate", calibrate), Command("simulate", simulate)]
+    return [Command("calibrate", calibrate), Command("demo", demo), Command("simulate", simulate)]
 
 
 @hookimpl

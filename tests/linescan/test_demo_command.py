@@ -1,0 +1,31 @@
+"""``catenary demo`` end to end on a short section, into a fresh SQLite database."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from click.testing import CliRunner
+from sqlalchemy import create_engine, select
+from sqlalchemy.orm import Session
+
+from catenary.cli import cli
+from catenary.runfile import open_run
+from catenary.storage.models import RigCalibration
+from catenary_linescan.rig import read_rig
+
+
+def test_demo_simulates_calibrates_and_stores(tmp_path: Path) -> None:
+    database = tmp_path / "demo.sqlite"
+    out = tmp_path / "demo"
+    args = ["--db", f"sqlite:///{database}", "demo", "--out", str(out), "--length-m", "40"]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    with open_run(out / "run.h5") as run:
+        assert run.header.scans > 2000
+        assert sorted(run.header.camera_pixels) == ["cam1", "cam2", "cam3", "cam4"]
+    assert max(c.reprojection_rms_px for c in read_rig(out / "rig.toml").cameras.values()) < 0.3
+    with Session(create_engine(f"sqlite:///{database}")) as session:
+        stored = session.scalars(select(RigCalibration)).one()
+        assert stored.vehicle.name == "demo-rig"
+        assert stored.content_toml == (out / "rig.toml").read_text()
+    assert f"database          sqlite:///{database}" in result.output
