@@ -1,0 +1,1 @@
+"""CAN bus acquisition: displacement sensors and wheel encoder (python-can, cantools)."""
