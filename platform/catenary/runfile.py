@@ -49,7 +49,9 @@ one block (plus one chunk of each vehicle dataset). Layout errors raise
   inside a gap between consecutive valid samples longer than ``max_gap_factor`` (default
   :data:`DEFAULT_MAX_GAP_FACTOR` = 2.5, i.e. two or more consecutive samples missing) times
   the run's median sample interval (interpolated across the gap). A sample whose
-  ``left_mm``, ``right_mm`` or ``lateral_mm`` is not finite counts as missing. With no valid
+  ``left_mm``, ``right_mm`` or ``lateral_mm`` is not finite records a faulty or missing
+  reading (a recorder's flag): every scan between the valid samples either side of it is a
+  fault, whatever the gap's length. With no valid
   sample at all every scan is a fault and the values are 0 (nominal ride). Values where
   ``fault`` is true are a best guess and must not be trusted.
 * Unknown extra groups and attributes are ignored; any HDF5 standard filter h5py can decode
@@ -1069,6 +1071,8 @@ class _VehicleStream:
         self._next = 0
         self._t = np.empty(0, dtype=np.float64)
         self._v = np.empty((3, 0), dtype=np.float64)
+        # _bad[k]: a faulty (non-finite) sample lies between valid samples k and k + 1
+        self._bad = np.empty(0, dtype=bool)
 
     def _read_more(self) -> bool:
         """Read the next chunk, keeping only the last sample held. False at the end."""
@@ -1081,11 +1085,20 @@ class _VehicleStream:
         for row, name in enumerate(_VEHICLE_SERIES[1:]):
             self._datasets[name].read_direct(v[row], np.s_[first:last], np.s_[0 : last - first])
         valid = np.isfinite(v).all(axis=0)
-        if not valid.all():
-            t = t[valid]
-            v = v[:, valid]
-        self._t = np.concatenate((self._t[-1:], t))
-        self._v = np.concatenate((self._v[:, -1:], v), axis=1)
+        faulty_so_far = np.cumsum(~valid)
+        kept = np.flatnonzero(valid)
+        held_bad = self._bad[-1:]
+        if kept.size == 0:
+            held_bad = held_bad | bool(faulty_so_far[-1])
+            bad = held_bad
+        else:
+            held_bad = held_bad | bool(faulty_so_far[kept[0]])
+            between = np.diff(faulty_so_far[kept]) > 0
+            trailing = faulty_so_far[-1] > faulty_so_far[kept[-1]]
+            bad = np.concatenate((held_bad, between, [trailing]))
+        self._t = np.concatenate((self._t[-1:], t[kept]))
+        self._v = np.concatenate((self._v[:, -1:], v[:, kept]), axis=1)
+        self._bad = bad
         self._next = last
         return True
 
@@ -1128,5 +1141,5 @@ class _VehicleStream:
         weight = np.where(span > 0, (t - t_left) / np.where(span > 0, span, 1.0), 0.0)
         weight = np.where(before, 0.0, weight)
         out[...] = sv[:, left] + weight * (sv[:, right] - sv[:, left])
-        gap = ~exact & (span > self._max_gap_s)
+        gap = ~exact & ((span > self._max_gap_s) | self._bad[left])
         fault[...] = before | after | gap

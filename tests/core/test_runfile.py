@@ -899,3 +899,25 @@ def test_writer_flushes_staged_scans_to_the_file(run_path: Path) -> None:
         w.append([2.0], [2.0], _good_lines(1))
     with pytest.raises(ValueError, match="closed"):
         w.append([3.0], [3.0], _good_lines(1))
+
+
+@pytest.mark.parametrize("series_chunk", [4, 9, 10, 1000])
+def test_one_flagged_sample_faults_the_scans_that_depend_on_it(
+    run_path: Path, series_chunk: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A recorder writes a flagged reading as NaN: even alone (a 2 ms interval, under the gap
+    # factor) every scan between its valid neighbours must be flagged, across chunk bounds.
+    monkeypatch.setattr("catenary.runfile.SERIES_CHUNK", series_chunk)
+    with RunFileWriter(run_path, scan_rate_hz=2000.0, cameras={"a": (2, 8)}) as w:
+        t_scan = np.arange(60) / 2000.0
+        w.append(t_scan, t_scan, {"a": np.zeros((60, 2), np.uint8)})
+        t = np.arange(32) / 1000.0
+        left = t.copy()
+        left[[9, 20, 21]] = np.nan
+        w.append_vehicle(t, left, t, t)
+    with open_run(run_path) as run:
+        fault = np.concatenate([b.vehicle.fault for b in run.blocks(7)])
+    expected = ((t_scan > 0.008 + 1e-12) & (t_scan < 0.010 - 1e-12)) | (
+        (t_scan > 0.019 + 1e-12) & (t_scan < 0.022 - 1e-12)
+    )
+    np.testing.assert_array_equal(fault, expected)
