@@ -23,6 +23,7 @@ from catenary.limits import (
     thresholds,
 )
 from catenary.plugins import PluginRegistry
+from catenary.record import record
 from catenary.storage.commands import db
 from catenary.wiretype import ProfileRangeError, WireType
 
@@ -253,6 +254,7 @@ def wire_types_command(
 
 
 cli.add_command(db)
+cli.add_command(record)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -17,7 +17,14 @@ from typing import Any
 import pluggy
 
 from catenary.limits import LimitPolicy
-from catenary.registrations import Command, Notifier, Processor, Reporter, Source
+from catenary.registrations import (
+    Command,
+    Notifier,
+    Processor,
+    Reporter,
+    Source,
+    VehicleSource,
+)
 from catenary.wiretype import WireType
 
 PROJECT = "catenary"
@@ -49,6 +56,15 @@ def catenary_sources() -> Iterable[Source]:
 
     Return ``Source`` objects; ``Source.open(settings)`` is called by the core when a run is
     recorded or processed and returns a ``ScanStream``.
+    """
+
+
+@hookspec
+def catenary_vehicle_sources() -> Iterable[VehicleSource]:
+    """Vehicle sensor sources: the displacement sensors and wheel encoder (e.g. over CAN).
+
+    Return ``VehicleSource`` objects; ``VehicleSource.open(settings)`` returns a
+    ``VehicleStream`` that ``catenary record`` writes beside a scan source's blocks.
     """
 
 

@@ -18,7 +18,14 @@ import pluggy
 
 from catenary import hookspecs
 from catenary.limits import LimitPolicy
-from catenary.registrations import Command, Notifier, Processor, Reporter, Source
+from catenary.registrations import (
+    Command,
+    Notifier,
+    Processor,
+    Reporter,
+    Source,
+    VehicleSource,
+)
 from catenary.wiretype import WireType
 
 ENTRY_POINT_GROUP = "catenary.plugins"
@@ -157,6 +164,9 @@ class PluginRegistry:
     def sources(self) -> dict[str, Source]:
         return self._collect("catenary_sources", "source", Source)
 
+    def vehicle_sources(self) -> dict[str, VehicleSource]:
+        return self._collect("catenary_vehicle_sources", "vehicle source", VehicleSource)
+
     def processors(self) -> dict[str, Processor]:
         return self._collect("catenary_processors", "processor", Processor)
 
@@ -175,6 +185,7 @@ class PluginRegistry:
             self.wire_types,
             self.limit_policies,
             self.sources,
+            self.vehicle_sources,
             self.processors,
             self.reporters,
             self.notifiers,
@@ -212,5 +223,6 @@ __all__ = [
     "Processor",
     "Reporter",
     "Source",
+    "VehicleSource",
     "WireType",
 ]

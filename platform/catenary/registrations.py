@@ -7,14 +7,14 @@ error boundary (``catenary.plugins``).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
 import click
 
-from catenary.domain import RunHeader, ScanBlock
+from catenary.domain import RunHeader, ScanBlock, VehicleSamples
 from catenary.wiretype import WireType
 
 
@@ -24,6 +24,21 @@ class ScanStream(Protocol):
     header: RunHeader
 
     def blocks(self, block_scans: int) -> Iterator[ScanBlock]: ...
+
+    def close(self) -> None: ...
+
+
+class VehicleStream(Protocol):
+    """An open vehicle sensor acquisition: timestamped sensor samples, no scans.
+
+    ``vehicle_samples(until_s)`` yields the samples up to ``until_s`` (scan clock) available
+    now, in blocks, times non-decreasing across calls; a sample whose fault verdict needs
+    later samples may be held back until a later call, or until ``final=True``.
+    """
+
+    def vehicle_samples(
+        self, until_s: float, *, final: bool = False
+    ) -> Iterable[VehicleSamples]: ...
 
     def close(self) -> None: ...
 
@@ -41,6 +56,16 @@ class Source:
     name: str
     description: str
     open: Callable[[Mapping[str, Any]], ScanStream]
+
+
+@dataclass(frozen=True)
+class VehicleSource:
+    """A vehicle sensor source (displacement sensors, encoder): ``open(settings)`` starts it
+    and returns a ``VehicleStream``; recording writes its samples beside a scan source's."""
+
+    name: str
+    description: str
+    open: Callable[[Mapping[str, Any]], VehicleStream]
 
 
 @dataclass(frozen=True)
@@ -81,6 +106,7 @@ class Command:
 KINDS: dict[str, type] = {
     "wire type": WireType,
     "source": Source,
+    "vehicle source": VehicleSource,
     "processor": Processor,
     "reporter": Reporter,
     "notifier": Notifier,
