@@ -1,14 +1,14 @@
 """Line-scan stereovision (the paper's method): camera model, calibration, simulator, processor.
 
-Registers the ``calibrate``, ``demo`` and ``simulate`` commands and the ``simulator``
-acquisition source. Modules are imported inside the hooks so that the registry reports a
-failure here by name.
+Registers the ``calibrate``, ``demo`` and ``simulate`` commands, the ``simulator``
+acquisition source and the ``linescan-stereo`` processor. Modules are imported inside the
+hooks so that the registry reports a failure here by name.
 """
 
 from __future__ import annotations
 
 from catenary import hookimpl
-from catenary.registrations import Command, Source
+from catenary.registrations import Command, Processor, Source
 
 
 @hookimpl
@@ -29,5 +29,19 @@ def catenary_sources() -> list[Source]:
             "simulator",
             "Physical line-scan simulator: a generated section of line, rendered per camera",
             open_simulation,
+        )
+    ]
+
+
+@hookimpl
+def catenary_processors() -> list[Processor]:
+    from catenary_linescan.processor.stereo import create
+
+    return [
+        Processor(
+            "linescan-stereo",
+            "Line-scan stereovision (the paper): profile features, N-camera matching, wire "
+            "tracking, wear width from the worn face's edges",
+            create,
         )
     ]

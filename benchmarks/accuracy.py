@@ -1,0 +1,385 @@
+"""Benchmark: accuracy of the line-scan processor against the simulator's ground truth.
+
+Runs the whole measurement chain on simulated sections the project's tests do not use (their
+own seeds) and compares it with the ground truth, per case:
+
+- the rig is calibrated the way users calibrate it: the simulator renders the calibration
+  tool's captures (the paper's figure 8), ``catenary_linescan.calibrate.calibrate_from_captures``
+  measures them (targets assigned with the mounting drawing's nominal camera poses) and
+  calibrates every camera and its resolution look-up table; the processor never sees the true
+  camera models;
+- the processor (features, matching, tracking) turns the run's blocks into wire observations
+  in the roof frame; the core then applies the vehicle compensation (``roof_to_track`` with
+  the noisy displacement sensors), the stagger-angle correction (``catenary.wear``: θ from the
+  measured stagger gradient) and the wire type's residual thickness, as the pipeline does.
+
+Per case it prints, for the running contact wires: the residual thickness error (RMS, 95th
+percentile, max), the height and stagger errors in the track frame (RMS, max), the recall of
+running contact wire samples, and the false rows and false wires (output wires that are not a
+contact wire), with the number of wire numbers each contact wire got (1 = stable).
+
+Targets (DESIGN.md, the issue): thickness 0.05 mm RMS and 0.10 mm worst; height and stagger
+within 2 mm; recall 99.5 %; no false wire.
+
+    .venv/bin/python benchmarks/accuracy.py                 # every case (a few minutes)
+    .venv/bin/python benchmarks/accuracy.py --quick         # shorter sections
+    .venv/bin/python benchmarks/accuracy.py --cases overlap blind-camera
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from catenary.domain import CameraLines, ScanBlock
+from catenary.vehicle import roof_to_track
+from catenary.wear import corrected_wear_width_mm, stagger_angle_by_wire_rad
+from catenary_linescan.calibrate import calibrate_from_captures
+from catenary_linescan.calibration import resolution_table_from_camera
+from catenary_linescan.camera import camera_from_pose
+from catenary_linescan.processor.stereo import LineScanProcessor
+from catenary_linescan.rig import Rig, RigCamera
+from catenary_linescan.simulator import DEMO_RIG_PATH, Simulation, load_rig, parse_settings
+from catenary_linescan.simulator.captures import write_captures
+from catenary_linescan.simulator.scene import generate_scene
+from catenary_wiretypes import load_profiles
+
+TRUE_DISTANCE_MM = 20.0
+"""An output point within this of a wire's contact point is that wire: wires are 11-15 mm
+thick, and one without a worn face (a new wire, or one raised out of running) is located at
+its centre, up to a radius above its contact point. Positions are scored separately."""
+
+
+@dataclass(frozen=True)
+class Case:
+    """One simulated section: simulation settings and scene parameters that differ."""
+
+    name: str
+    settings: dict[str, Any]
+    scene: dict[str, Any] = field(default_factory=dict)
+    note: str = ""
+
+
+CASES = [
+    Case("night", {"seed": 101, "lighting": "night", "overlap": False}),
+    Case("day-filter", {"seed": 102, "lighting": "day-filter", "overlap": False}),
+    Case("day-white", {"seed": 103, "lighting": "day-white", "overlap": False}),
+    Case("overlap", {"seed": 104, "lighting": "night", "overlap": True, "length_m": 300.0}),
+    Case(
+        "overlap-white",
+        {"seed": 105, "lighting": "day-white", "overlap": True, "length_m": 300.0},
+        note="white daylight: messengers dark and visible",
+    ),
+    Case(
+        "wear-12mm",
+        {"seed": 106, "overlap": False, "curve_radius_m": 0.0},
+        {"wear_base_mm": (9.5, 11.0)},
+        note="faces 8-12 mm",
+    ),
+    Case(
+        "height-1300",
+        {"seed": 107, "overlap": False, "curve_radius_m": 0.0},
+        {"contact_height_above_roof_mm": (1220.0, 1620.0)},
+        note="1300-1500 mm above the roof",
+    ),
+    Case(
+        "height-2500",
+        {"seed": 108, "overlap": False, "curve_radius_m": 0.0},
+        {"contact_height_above_roof_mm": (2220.0, 2620.0)},
+        note="2300-2500 mm above the roof",
+    ),
+    Case(
+        "stagger-400",
+        {"seed": 109, "overlap": False, "curve_radius_m": 0.0},
+        {"stagger_mm": (385.0, 400.0)},
+        note="zigzag ±385-400 mm",
+    ),
+    Case(
+        "curve",
+        {"seed": 110, "overlap": False, "curve_radius_m": 600.0, "direction": "decreasing"},
+        note="R 600 m, decreasing chainage",
+    ),
+    Case(
+        "blind-camera",
+        {
+            "seed": 111,
+            "overlap": True,
+            "sun_blind": "cam2",
+            "sun_blind_span": (0.1, 0.9),
+            "length_m": 300.0,
+        },
+        note="cam2 saturated over 80 % of the run, overlap included",
+    ),
+]
+
+
+def calibrated_rig(workdir: Path) -> Rig:
+    """The demo rig calibrated from simulated captures, as ``catenary calibrate`` does it.
+
+    The targets are assigned with the nominal camera poses of the mounting drawing (the
+    simulated rig's design values: position, tilt, focal length, principal point at the
+    line's middle, no distortion); everything else comes from the captures.
+    """
+    sim_rig = load_rig(DEMO_RIG_PATH)
+    captures, _ = write_captures(workdir / "captures.h5", sim_rig, seed=7)
+    nominal = {}
+    for cam in sim_rig.cameras:
+        model = camera_from_pose(
+            cam.name,
+            cam.pixels,
+            cam.x_mm,
+            cam.z_mm,
+            cam.tilt_deg,
+            cam.focal_px,
+            (cam.pixels - 1) / 2.0,
+        )
+        table = resolution_table_from_camera(
+            model, np.array([-600.0, 600.0]), np.array([1300.0, 2500.0])
+        )
+        nominal[cam.name] = RigCamera(model, table)
+    reports = calibrate_from_captures(
+        captures, distortion=None, approximate=Rig(sim_rig.vehicle, nominal)
+    )
+    cameras = {
+        r.calibration.camera.name: RigCamera(
+            camera=r.calibration.camera,
+            resolution=r.table,
+            reprojection_rms_px=r.calibration.rms_px,
+            reprojection_max_px=r.calibration.max_px,
+        )
+        for r in reports
+    }
+    return Rig(vehicle=sim_rig.vehicle, cameras=cameras, source=captures.name)
+
+
+def simulation(case: Case, quick: bool) -> Simulation:
+    settings = {"length_m": 150.0, **case.settings}
+    if quick:
+        settings["length_m"] = min(settings["length_m"], 150.0 if settings.get("overlap") else 60.0)
+    sim = Simulation(parse_settings(settings))
+    if case.scene:
+        params = replace(sim.settings.scene_params(), **case.scene)
+        sim.scene = generate_scene(params, sim.settings.seed)
+    return sim
+
+
+@dataclass
+class Collected:
+    """What a case's run gives: the processor's rows and the truth per scan."""
+
+    scan: list[np.ndarray] = field(default_factory=list)
+    wire: list[np.ndarray] = field(default_factory=list)
+    x: list[np.ndarray] = field(default_factory=list)
+    z: list[np.ndarray] = field(default_factory=list)
+    width: list[np.ndarray] = field(default_factory=list)
+    cameras: list[np.ndarray] = field(default_factory=list)
+    truth: dict[str, list[np.ndarray]] = field(default_factory=dict)
+
+    def add_rows(self, observations: Any) -> None:
+        self.scan.append(observations.scan)
+        self.wire.append(observations.wire)
+        self.x.append(observations.x_roof_mm)
+        self.z.append(observations.z_roof_mm)
+        self.width.append(observations.wear_width_mm)
+        self.cameras.append(observations.cameras)
+
+    def add_truth(self, name: str, values: np.ndarray) -> None:
+        self.truth.setdefault(name, []).append(values)
+
+
+_TRUTH_WIRE = (
+    "present",
+    "running",
+    "x_roof_mm",
+    "z_roof_mm",
+    "stagger_mm",
+    "height_mm",
+    "wear_width_mm",
+    "wear_width_inplane_mm",
+    "residual_thickness_mm",
+)
+
+
+def run_case(case: Case, rig: Rig, quick: bool) -> dict[str, Any]:
+    sim = simulation(case, quick)
+    processor = LineScanProcessor(rig)
+    got = Collected()
+    bit_depth = {c.name: c.bit_depth for c in sim.rig.cameras}
+    started = time.perf_counter()
+    processing = 0.0
+    for chunk in sim.chunks():
+        block = ScanBlock(
+            first_scan=chunk.first_scan,
+            position_m=chunk.position_m,
+            time_s=chunk.time_s,
+            cameras={n: CameraLines(lines, bit_depth[n]) for n, lines in chunk.lines.items()},
+            vehicle=chunk.vehicle,
+        )
+        t0 = time.perf_counter()
+        got.add_rows(processor.process(block))
+        processing += time.perf_counter() - t0
+        truth = chunk.truth
+        for name in _TRUTH_WIRE:
+            got.add_truth(name, getattr(truth, name))
+        got.add_truth("position_m", chunk.position_m)
+        for name in ("left_mm", "right_mm", "lateral_mm"):
+            got.add_truth("sensor_" + name, getattr(chunk.vehicle, name))
+    t0 = time.perf_counter()
+    got.add_rows(processor.finish())
+    processing += time.perf_counter() - t0
+    contact = np.array([w.contact for w in sim.scene.wires])
+    wire_type = {p.name: p for p in load_profiles()}[sim.scene.wire_type.name]
+    result = evaluate(got, contact, wire_type, rig)
+    result.update(
+        case=case.name,
+        note=case.note,
+        scans=sim.scans,
+        seconds=time.perf_counter() - started,
+        processing_s=processing,
+        table_check=processor.table_check,
+    )
+    return result
+
+
+def _stats(errors: np.ndarray) -> tuple[float, float, float]:
+    errors = errors[np.isfinite(errors)]
+    if errors.shape[0] == 0:
+        return math.nan, math.nan, math.nan
+    a = np.abs(errors)
+    return float(np.sqrt(np.mean(errors**2))), float(np.percentile(a, 95)), float(a.max())
+
+
+def evaluate(got: Collected, contact: np.ndarray, wire_type: Any, rig: Rig) -> dict[str, Any]:
+    t = {k: np.concatenate(v) for k, v in got.truth.items()}
+    scan = np.concatenate(got.scan)
+    wire = np.concatenate(got.wire)
+    x = np.concatenate(got.x)
+    z = np.concatenate(got.z)
+    width = np.concatenate(got.width)
+    # which true wire each row is
+    dx = t["x_roof_mm"][scan] - x[:, None]
+    dz = t["z_roof_mm"][scan] - z[:, None]
+    distance = np.where(t["present"][scan], np.hypot(dx, dz), np.inf)
+    which = np.argmin(distance, axis=1)
+    near = distance[np.arange(scan.shape[0]), which] <= TRUE_DISTANCE_MM
+    true_row = near & contact[which]
+    false_rows = int(np.count_nonzero(~true_row))
+    # false wires: output wire numbers most of whose rows are not a contact wire
+    false_wires = 0
+    for number in np.unique(wire):
+        rows = wire == number
+        if np.mean(true_row[rows]) < 0.5:
+            false_wires += 1
+    # wire numbers per true contact wire (1: stable), over its running samples
+    numbers = {}
+    for j in np.flatnonzero(contact):
+        rows = true_row & (which == j) & t["running"][scan, j]
+        if np.any(rows):
+            numbers[int(j)] = int(np.unique(wire[rows]).shape[0])
+    # recall of running contact wire samples
+    running = t["running"]
+    detected = np.zeros(running.shape, dtype=bool)
+    detected[scan[true_row], which[true_row]] = True
+    recall = float(np.count_nonzero(detected & running) / max(np.count_nonzero(running), 1))
+    # the pipeline: track frame, stagger angle, corrected width, residual thickness
+    left, right, lateral = (t["sensor_" + k][scan] for k in ("left_mm", "right_mm", "lateral_mm"))
+    stagger, height = roof_to_track(x, z, left, right, lateral, rig.vehicle)
+    position = t["position_m"][scan]
+    theta = stagger_angle_by_wire_rad(wire, position, stagger)
+    w0 = corrected_wear_width_mm(width, theta)
+    # NaN width (faces seen but not agreed on): no thickness, counted as "no width"
+    thickness = wire_type.residual_thickness_mm(np.clip(w0, 0.0, wire_type.width_mm))
+    use = true_row & running[scan, which]
+    rows = np.flatnonzero(use)
+    j = which[rows]
+    s = scan[rows]
+    thickness_error = thickness[rows] - t["residual_thickness_mm"][s, j]
+    width_error = w0[rows] - t["wear_width_mm"][s, j]
+    height_error = height[rows] - t["height_mm"][s, j]
+    stagger_error = stagger[rows] - t["stagger_mm"][s, j]
+    key = scan * 1000 + wire
+    duplicates = int(key.shape[0] - np.unique(key).shape[0])
+    return {
+        "duplicates": duplicates,
+        "running": int(np.count_nonzero(running)),
+        "recall": recall,
+        "false_rows": false_rows,
+        "false_wires": false_wires,
+        "numbers": numbers,
+        "thickness": _stats(thickness_error),
+        "width": _stats(width_error),
+        "height": _stats(height_error),
+        "stagger": _stats(stagger_error),
+        "max_wear_mm": float(np.nanmax(t["wear_width_mm"][s, j])) if rows.size else math.nan,
+        "no_width": int(np.count_nonzero(~np.isfinite(width[rows]))),
+    }
+
+
+def print_table(results: list[dict[str, Any]]) -> None:
+    header = (
+        f"{'case':<14} {'scans':>6} {'recall%':>8} {'false':>9} {'wire#':>6} "
+        f"{'thick rms/p95/max mm':>21} {'width rms':>9} {'height rms/max':>15} "
+        f"{'stagger rms/max':>15} {'wear max':>8} {'no w':>5} {'s/case':>7}"
+    )
+    print(header)
+    print("-" * len(header))
+    for r in results:
+        th, wd, hg, st = r["thickness"], r["width"], r["height"], r["stagger"]
+        numbers = ",".join(str(v) for v in r["numbers"].values()) or "-"
+        print(
+            f"{r['case']:<14} {r['scans']:>6d} {100 * r['recall']:>8.3f} "
+            f"{r['false_wires']:>3d}w/{r['false_rows']:<4d} {numbers:>6} "
+            f"{th[0]:>6.3f}/{th[1]:>6.3f}/{th[2]:>6.3f}  {wd[0]:>9.3f} "
+            f"{hg[0]:>7.2f}/{hg[2]:>6.2f} {st[0]:>7.2f}/{st[2]:>6.2f} "
+            f"{r['max_wear_mm']:>8.2f} {r['no_width']:>5d} {r['seconds']:>7.1f}"
+        )
+    for r in results:
+        if r["duplicates"]:
+            print(f"{r['case']}: {r['duplicates']} rows repeat a (scan, wire) pair")
+    print()
+    print("false: output wires that are not a contact wire (w) / rows not on a contact wire;")
+    print("wire#: wire numbers each running contact wire got (1 = stable through the run);")
+    print("no w: rows of running wires whose face the cameras did not agree on (no width).")
+    print(
+        "Targets: thickness 0.05 RMS / 0.10 max; height, stagger 2 mm; recall 99.5 %; "
+        "no false wire."
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", nargs="*", help="case names (default: all)")
+    parser.add_argument("--quick", action="store_true", help="shorter sections")
+    args = parser.parse_args(argv)
+    cases = [c for c in CASES if not args.cases or c.name in args.cases]
+    unknown = set(args.cases or []) - {c.name for c in CASES}
+    if unknown:
+        parser.error(f"unknown case(s) {sorted(unknown)}; known: {[c.name for c in CASES]}")
+    with tempfile.TemporaryDirectory() as tmp:
+        rig = calibrated_rig(Path(tmp))
+    worst = max(c.reprojection_rms_px for c in rig.cameras.values())
+    print(f"rig calibrated from simulated captures: worst reprojection RMS {worst:.3f} px")
+    results = []
+    for case in cases:
+        result = run_case(case, rig, args.quick)
+        results.append(result)
+        print(
+            f"  {case.name}: {result['scans']} scans in {result['seconds']:.0f} s "
+            f"(processor {result['processing_s']:.1f} s); model/table "
+            + " ".join(f"{k} {v:.4f}" for k, v in result["table_check"].items()),
+            file=sys.stderr,
+        )
+    print_table(results)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

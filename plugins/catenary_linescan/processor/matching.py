@@ -1,0 +1,1146 @@
+"""Stereo matching of wire candidates across N line-scan cameras (the paper's section 3.1).
+
+The paper's trinocular check (figure 4), generalised to any number of cameras and vectorised
+over the scans of a block:
+
+1. **Pad** each camera's candidates (profile features) to ``(n, C, K)`` arrays: ``n`` scans,
+   ``C`` cameras, ``K`` candidates at most per scan and camera (:func:`pad_candidates`).
+2. **Enumerate** (step 1 of the paper): for camera pairs ``(a, b)`` triangulate all ``K x K``
+   combinations of their candidates with the closed form (eq. 9-10), keeping points in front
+   of both cameras and inside the plausible volume above the roof. Not every pair is needed:
+   only pairs meeting every set of ``min_cameras`` cameras (:func:`covering_pairs`: two of
+   the six for four cameras and three needed).
+3. **Verify** (steps 2-3): re-project each point into every other camera ``c`` and look up the
+   nearest candidate there (one ``searchsorted`` over the block). It confirms the point when
+   it lies within ``max(k · σ, floor_px)`` of the re-projection, where ``σ`` combines camera
+   ``c``'s own uncertainty with those of ``a`` and ``b`` carried through the triangulation::
+
+       σ² = σ_c² + (∂u_c/∂u_a)² σ_a² + (∂u_c/∂u_b)² σ_b²,   σ_i² = rms_i² + σ_feature²
+
+   ``rms_i`` is camera ``i``'s calibration reprojection RMS (the paper's "average deviation
+   distance of re-projection") and ``σ_feature`` the features' centre uncertainty. The
+   derivatives grow when the rays of ``a`` and ``b`` meet at a shallow angle, so a point from
+   two close cameras gets the wider window it needs and one from a wide baseline a narrow one.
+   Candidates of opposite polarity (bright on dark against dark on bright) never match.
+4. **Resolve** conflicts so that each detection is used once (:func:`_resolve`): greedy by
+   score (cameras confirming first, then the normalised residual), vectorised across the
+   scans of the block in rounds; then a detection may be lent by a point with a camera to
+   spare to one that needs it (two objects in line in one camera), and a merged silhouette
+   (several objects in line, its centre and face belonging to none) supports the points whose
+   images it holds. A point needs ``min_cameras`` cameras: 3 by default with three or more
+   cameras (two views always intersect, so only a third verifies), which keeps a 4-camera rig
+   working with one camera blinded by the sun or missing a wire.
+5. **Triangulate** each accepted point from all the cameras that confirmed it (least squares
+   on the rays, then Gauss-Newton on the reprojection error:
+   :func:`catenary_linescan.triangulation.triangulate`), from the worn face's midpoints where
+   two cameras at least saw the face (the contact point), with a leave-one-out check that
+   drops a camera whose image the others do not predict.
+6. **Two views**: points of two cameras made of the detections left unused, where both saw a
+   face, are returned unverified (``Matches.verified``): tracking takes them only where they
+   continue a wire it follows (a blind camera and a missed detection at once).
+7. **Separate**: of two points of a scan closer than two wires can be apart (30 mm), the
+   weaker is one wire seen twice and goes.
+
+:func:`face_widths_mm` then measures the worn face of each point in every confirming camera:
+the rays through the face's two edges are cut with the face's plane through the contact point
+(horizontal in the track frame, so tilted by the body's roll in the roof frame), which is the
+camera model's exact resolution there; the rig's resolution look-up table times the width in
+pixels is the cross-check. The cameras' widths are combined robustly (median, then the
+precision-weighted mean of the cameras that agree with it).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from catenary_linescan.calibration import ResolutionTable
+from catenary_linescan.camera import LineScanCamera
+from catenary_linescan.triangulation import triangulate
+
+__all__ = [
+    "Candidates",
+    "FaceWidths",
+    "FeatureTable",
+    "MatchConfig",
+    "Matches",
+    "camera_sigmas_px",
+    "covering_pairs",
+    "face_widths_mm",
+    "match",
+    "pad_candidates",
+]
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
+
+class FeatureTable(Protocol):
+    """One camera's profile features for a block of scans, flattened: fields shape (m,).
+
+    ``scan`` is the scan's index within the block; pixel positions follow FORMATS.md.
+    ``polarity`` is +1 for a candidate brighter than its background, -1 darker, 0 unknown.
+    """
+
+    @property
+    def scan(self) -> NDArray[np.integer]: ...
+    @property
+    def centre_px(self) -> FloatArray: ...
+    @property
+    def left_px(self) -> FloatArray: ...
+    @property
+    def right_px(self) -> FloatArray: ...
+    @property
+    def face_left_px(self) -> FloatArray: ...
+    @property
+    def face_right_px(self) -> FloatArray: ...
+    @property
+    def contrast(self) -> FloatArray: ...
+    @property
+    def polarity(self) -> NDArray[np.integer]: ...
+
+
+@dataclass(frozen=True)
+class MatchConfig:
+    """Settings of the matching (lengths in mm, image coordinates in px).
+
+    Attributes
+    ----------
+    max_candidates : int
+        Most candidates kept per scan and camera (the strongest by contrast): ``K``'s cap.
+        The field's systems follow 10-12 wires; with messengers and fittings 24 leaves room.
+    feature_sigma_px : float
+        Standard deviation of a candidate's centre from the features [px].
+    confirm_sigmas : float
+        Confirmation window in standard deviations of the predicted residual (``k``).
+    floor_px : float
+        Narrowest confirmation window [px]: a floor under ``k · σ`` for what the noise model
+        does not hold (blur, a wire's outline seen from different sides).
+    min_cameras : int or None
+        Cameras a point needs; None: 3 with three cameras or more, else 2.
+    x_range_mm, z_range_mm : tuple of float
+        Roof-frame volume in which points are plausible (messengers included).
+    match_polarity : bool
+        Candidates of opposite (non-zero) polarity never match.
+    contact_from_faces : bool
+        Triangulate the contact point from the face's midpoints where two cameras at least
+        saw the face (else from the candidates' centres).
+    support_merged : bool
+        Let merged silhouettes support points (step 4 of the module docstring).
+    covering_pairs : bool
+        Enumerate only the camera pairs that meet every set of ``min_cameras`` cameras
+        (:func:`covering_pairs`), else every pair.
+    two_view : bool
+        Also return the points of two cameras made of detections left unused (unverified,
+        ``Matches.verified`` false) where both saw a worn face, for tracking to take where
+        they continue a wire.
+    min_separation_mm : float
+        Two points of one scan closer than this are one wire seen twice; the weaker goes
+        (:func:`_separate`). Wires are 11-15 mm thick: two closer than this touch.
+    """
+
+    max_candidates: int = 24
+    feature_sigma_px: float = 0.15
+    confirm_sigmas: float = 4.0
+    floor_px: float = 0.6
+    min_cameras: int | None = None
+    x_range_mm: tuple[float, float] = (-3000.0, 3000.0)
+    z_range_mm: tuple[float, float] = (300.0, 6000.0)
+    match_polarity: bool = True
+    contact_from_faces: bool = True
+    support_merged: bool = True
+    covering_pairs: bool = True
+    two_view: bool = True
+    min_separation_mm: float = 30.0
+
+    def cameras_needed(self, cameras: int) -> int:
+        if self.min_cameras is not None:
+            return max(2, min(self.min_cameras, cameras))
+        return 3 if cameras >= 3 else 2
+
+
+@dataclass(frozen=True, eq=False)
+class Candidates:
+    """Candidates padded per scan and camera: every field ``(n, C, K)``; NaN / -1 padding.
+
+    ``detection`` is each candidate's row in its camera's flat feature table (-1: padding).
+    """
+
+    centre_px: FloatArray
+    left_px: FloatArray
+    right_px: FloatArray
+    face_left_px: FloatArray
+    face_right_px: FloatArray
+    contrast: FloatArray
+    polarity: NDArray[np.int8]
+    detection: IntArray
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        n, c, k = self.centre_px.shape
+        return int(n), int(c), int(k)
+
+
+def pad_candidates(
+    features: Sequence[FeatureTable], scans: int, max_candidates: int = 24
+) -> Candidates:
+    """Gather flat per-camera features into ``(n, C, K)`` arrays.
+
+    Parameters
+    ----------
+    features : sequence of FeatureTable, length C
+        One flat table per camera, in the rig's camera order.
+    scans : int
+        Scans in the block (``n``); ``scan`` values must lie in ``[0, n)``.
+    max_candidates : int
+        Cap on ``K``; in a scan with more candidates the weakest (lowest contrast) are dropped.
+
+    Returns
+    -------
+    Candidates
+        ``K`` is the largest count of any scan and camera (at most ``max_candidates``, at
+        least 1), candidates of a scan in order of position along the line.
+    """
+    counts = []
+    for table in features:
+        scan = np.asarray(table.scan, dtype=np.int64)
+        counts.append(np.bincount(scan, minlength=scans)[:scans] if scan.size else np.zeros(1))
+    k = int(max(1, min(max_candidates, max(int(np.max(c, initial=0)) for c in counts))))
+    n_cameras = len(features)
+    shape = (scans, n_cameras, k)
+    out = {
+        name: np.full(shape, np.nan)
+        for name in ("centre_px", "left_px", "right_px", "face_left_px", "face_right_px")
+    }
+    contrast = np.full(shape, np.nan)
+    polarity = np.zeros(shape, dtype=np.int8)
+    detection = np.full(shape, -1, dtype=np.int64)
+    for column, table in enumerate(features):
+        scan = np.asarray(table.scan, dtype=np.int64)
+        if scan.size == 0:
+            continue
+        strength = np.nan_to_num(np.asarray(table.contrast, dtype=np.float64), nan=0.0)
+        centre = np.asarray(table.centre_px, dtype=np.float64)
+        if int(counts[column].max()) <= k and bool(np.all(scan[1:] >= scan[:-1])):
+            # the usual case: in scan order and none over the cap
+            rows = np.arange(scan.shape[0])
+            scan_kept = scan
+        else:
+            # strongest first within a scan, to rank and cap, then by position along the line
+            order = np.lexsort((-np.abs(strength), scan))
+            sorted_scan = scan[order]
+            rank = np.arange(order.shape[0]) - np.searchsorted(sorted_scan, sorted_scan)
+            rows = order[rank < k]
+            rows = rows[np.lexsort((centre[rows], scan[rows]))]
+            scan_kept = scan[rows]
+        slot = np.arange(rows.shape[0]) - np.searchsorted(scan_kept, scan_kept, side="left")
+        for name, values in out.items():
+            values[scan_kept, column, slot] = np.asarray(getattr(table, name), np.float64)[rows]
+        contrast[scan_kept, column, slot] = strength[rows]
+        polarity[scan_kept, column, slot] = np.asarray(table.polarity)[rows]
+        detection[scan_kept, column, slot] = rows
+    return Candidates(
+        centre_px=out["centre_px"],
+        left_px=out["left_px"],
+        right_px=out["right_px"],
+        face_left_px=out["face_left_px"],
+        face_right_px=out["face_right_px"],
+        contrast=contrast,
+        polarity=polarity,
+        detection=detection,
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class Matches:
+    """Points confirmed by the matching, ``m`` of them (one per wire and scan).
+
+    Attributes
+    ----------
+    scan : ndarray of int, shape (m,)
+        Scan index within the block.
+    slot : ndarray of int, shape (m, C)
+        The candidate (index along ``K`` of :class:`Candidates`) each camera contributed; -1
+        where the camera did not confirm the point.
+    x_mm, z_mm : ndarray, shape (m,)
+        Roof-frame position [mm] from all confirming cameras: the worn face's centre where two
+        cameras saw the face (``from_face``), else the point the candidates' centres give.
+    from_face : ndarray of bool, shape (m,)
+        Whether the position comes from the face's midpoints.
+    cameras : ndarray of int, shape (m,)
+        Number of cameras that confirmed the point: those in ``slot``, and those whose merged
+        silhouette supports it (``MatchConfig.merged_width_mm``).
+    reprojection_rms_px : ndarray, shape (m,)
+        RMS of the triangulation's residuals [px].
+    sigma_x_mm, sigma_z_mm : ndarray, shape (m,)
+        Standard deviation of the position for the features' noise [mm].
+    verified : ndarray of bool, shape (m,)
+        Confirmed by ``min_cameras``. The others (``MatchConfig.two_view``) are points of two
+        cameras whose detections no verified point uses: unverifiable alone, they can only
+        continue a wire's track where it predicts them (:mod:`.tracking`).
+    """
+
+    scan: IntArray
+    slot: IntArray
+    x_mm: FloatArray
+    z_mm: FloatArray
+    from_face: BoolArray
+    cameras: IntArray
+    reprojection_rms_px: FloatArray
+    sigma_x_mm: FloatArray
+    sigma_z_mm: FloatArray
+    verified: BoolArray
+
+    @property
+    def count(self) -> int:
+        return int(self.scan.shape[0])
+
+    def take(self, rows: NDArray[np.integer] | BoolArray) -> Matches:
+        """The matches at ``rows`` (indices or a mask)."""
+        return Matches(
+            scan=self.scan[rows],
+            slot=self.slot[rows],
+            x_mm=self.x_mm[rows],
+            z_mm=self.z_mm[rows],
+            from_face=self.from_face[rows],
+            cameras=self.cameras[rows],
+            reprojection_rms_px=self.reprojection_rms_px[rows],
+            sigma_x_mm=self.sigma_x_mm[rows],
+            sigma_z_mm=self.sigma_z_mm[rows],
+            verified=self.verified[rows],
+        )
+
+
+def camera_sigmas_px(reprojection_rms_px: Sequence[float], feature_sigma_px: float) -> FloatArray:
+    """Per-camera standard deviation of a candidate's centre [px], shape (C,).
+
+    ``sqrt(rms² + σ_feature²)``; an unknown (NaN) calibration RMS counts as 0.5 px.
+    """
+    rms = np.asarray(reprojection_rms_px, dtype=np.float64)
+    rms = np.where(np.isfinite(rms), rms, 0.5)
+    return np.asarray(np.hypot(rms, feature_sigma_px), dtype=np.float64)
+
+
+# -- geometry helpers ------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """A camera's ideal (undistorted) model in arrays: ``M``, centre and optical axis."""
+
+    m: FloatArray
+    centre: FloatArray
+    axis: FloatArray
+
+    @classmethod
+    def of(cls, camera: LineScanCamera) -> _Geometry:
+        return cls(camera.matrix, camera.centre_mm, camera.optical_axis)
+
+    def depth(self, x: FloatArray, z: FloatArray) -> FloatArray:
+        return np.asarray(
+            self.axis[0] * (x - self.centre[0]) + self.axis[1] * (z - self.centre[1]), np.float64
+        )
+
+    def project(self, x: FloatArray, z: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Ideal ``u`` and its gradient ``(du/dx, du/dz)`` at roof-frame points."""
+        m = self.m
+        with np.errstate(divide="ignore", invalid="ignore"):
+            den = m[1, 0] * x + m[1, 1] * z + m[1, 2]
+            u = (m[0, 0] * x + m[0, 1] * z + m[0, 2]) / den
+            gx = (m[0, 0] - u * m[1, 0]) / den
+            gz = (m[0, 1] - u * m[1, 1]) / den
+        return u, gx, gz
+
+
+def _line_coefficients(m: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Equation 10's ``p, q, k``: the ray of ideal coordinate ``u`` is ``p x + q z = k``."""
+    return m[0, 0] - u * m[1, 0], m[0, 1] - u * m[1, 1], u * m[1, 2] - m[0, 2]
+
+
+@dataclass(frozen=True)
+class _Sorted:
+    """One camera's candidates sorted along each scan's line, flattened with row offsets, so
+    that one ``searchsorted`` finds the nearest candidate for queries from any scans."""
+
+    keys: FloatArray  # (n * K,) ascending
+    order: NDArray[np.intp]  # (n, K) slot of each sorted position
+    values: FloatArray  # (n, K) the candidates, by slot
+    span: float
+
+    @classmethod
+    def of(cls, values: FloatArray, span: float) -> _Sorted:
+        n = values.shape[0]
+        order = np.argsort(np.where(np.isnan(values), np.inf, values), axis=1, kind="stable")
+        ordered = np.take_along_axis(values, order, axis=1)
+        offset = (np.arange(n, dtype=np.float64) * (4.0 * span))[:, np.newaxis]
+        keys = np.where(np.isnan(ordered), 1.5 * span, np.clip(ordered, -span, span)) + offset
+        return cls(keys.ravel(), order, values, span)
+
+    def nearest(
+        self, scan: NDArray[np.intp], query: FloatArray
+    ) -> tuple[NDArray[np.intp], FloatArray]:
+        """Slot of the candidate nearest each query in its scan, and ``query - candidate``.
+
+        ``scan`` and ``query`` are ``(h,)``; the residual is NaN where the scan has no
+        candidate or the query is NaN.
+        """
+        k = self.order.shape[1]
+        span = self.span
+        q = np.where(np.isnan(query), 0.0, np.clip(query, -span, span)) + scan * (4.0 * span)
+        position = np.searchsorted(self.keys, q)
+        row_start = scan * k
+        lower = np.clip(position - 1, row_start, row_start + k - 1)
+        upper = np.clip(position, row_start, row_start + k - 1)
+        pick = np.where(np.abs(self.keys[upper] - q) < np.abs(self.keys[lower] - q), upper, lower)
+        slot = self.order.ravel()[pick]
+        found = self.values[scan, slot]
+        return slot, query - found
+
+
+# -- the matching -----------------------------------------------------------------------------
+
+
+def covering_pairs(centres: Sequence[FloatArray], needed: int) -> list[tuple[int, int]]:
+    """Camera pairs to enumerate so that every point seen by ``needed`` cameras is found.
+
+    A point confirmed by a set of ``needed`` cameras or more is enumerated from any pair
+    inside that set, so the pairs need only meet every ``needed``-subset of the cameras, not
+    be all of them: with four cameras and three needed, two pairs (``{1, 4}`` and ``{2, 3}``)
+    meet all four triples, a third of the work of all six. Chosen greedily: the pair meeting
+    the most subsets not yet met, the wider baseline first (better-conditioned points).
+
+    Parameters
+    ----------
+    centres : sequence of ndarray (2,)
+        Camera centres in the roof frame [mm], in camera order.
+    needed : int
+        Cameras a point needs (2: every pair is needed).
+
+    Returns
+    -------
+    list of (int, int)
+        Camera index pairs ``(a, b)`` with ``a < b``.
+    """
+    cameras = len(centres)
+    pairs = list(itertools.combinations(range(cameras), 2))
+    if needed <= 2:
+        return pairs
+    baseline = {
+        (a, b): float(np.hypot(*(np.asarray(centres[a]) - np.asarray(centres[b]))))
+        for a, b in pairs
+    }
+    uncovered = {frozenset(s) for s in itertools.combinations(range(cameras), needed)}
+    chosen: list[tuple[int, int]] = []
+    while uncovered:
+        best = max(
+            pairs,
+            key=lambda p: (sum(1 for s in uncovered if p[0] in s and p[1] in s), baseline[p]),
+        )
+        chosen.append(best)
+        uncovered = {s for s in uncovered if not (best[0] in s and best[1] in s)}
+    return sorted(chosen)
+
+
+@dataclass(frozen=True)
+class _Hypotheses:
+    """Candidate points confirmed by ``min_cameras`` cameras at least: fields ``(h, ...)``."""
+
+    scan: NDArray[np.intp]  # (h,)
+    slot: NDArray[np.int64]  # (h, C), -1: camera not in the hypothesis
+    count: NDArray[np.int64]  # (h,) cameras whose detection confirms it (the pair's included)
+    inside: NDArray[np.int64]  # (h, C) unconfirming candidate whose silhouette holds it, or -1
+    chi2: FloatArray  # (h,) sum of squared normalised residuals of the confirmations
+
+
+def _enumerate(
+    geometry: Sequence[_Geometry],
+    u: FloatArray,
+    silhouette: tuple[FloatArray, FloatArray],
+    polarity: NDArray[np.int8],
+    sigma: FloatArray,
+    config: MatchConfig,
+    span: float,
+    needed: int,
+    pairs: Sequence[tuple[int, int]],
+) -> _Hypotheses:
+    """Steps 2-3 of the module docstring for the given camera pairs."""
+    n_cameras = u.shape[1]
+    sorted_u = [_Sorted.of(u[:, c, :], span) for c in range(n_cameras)]
+    lines = [_line_coefficients(geometry[c].m, u[:, c, :]) for c in range(n_cameras)]
+    parts: list[_Hypotheses] = []
+    x_lo, x_hi = config.x_range_mm
+    z_lo, z_hi = config.z_range_mm
+    for a, b in pairs:
+        ga, gb = geometry[a], geometry[b]
+        # all K x K combinations: camera a's slots along axis 1, camera b's along axis 2
+        pa, qa, ka = (v[:, :, np.newaxis] for v in lines[a])
+        pb, qb, kb = (v[:, np.newaxis, :] for v in lines[b])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            det = pa * qb - pb * qa
+            x = (qb * ka - qa * kb) / det
+            z = (pa * kb - pb * ka) / det
+            ok = (x >= x_lo) & (x <= x_hi) & (z >= z_lo) & (z <= z_hi)
+        if config.match_polarity:
+            ok &= (polarity[:, a, :, np.newaxis] * polarity[:, b, np.newaxis, :]) >= 0
+        scan, slot_a, slot_b = np.nonzero(ok)
+        x, z = x[scan, slot_a, slot_b], z[scan, slot_a, slot_b]
+        pa, qa = lines[a][0][scan, slot_a], lines[a][1][scan, slot_a]
+        pb, qb = lines[b][0][scan, slot_b], lines[b][1][scan, slot_b]
+        front = (ga.depth(x, z) > 0.0) & (gb.depth(x, z) > 0.0)
+        scan, slot_a, slot_b, x, z, pa, qa, pb, qb = (
+            v[front] for v in (scan, slot_a, slot_b, x, z, pa, qa, pb, qb)
+        )
+        h = scan.shape[0]
+        pol_a, pol_b = polarity[scan, a, slot_a], polarity[scan, b, slot_b]
+        pol = np.where(pol_a != 0, pol_a, pol_b)
+        slot = np.full((h, n_cameras), -1, dtype=np.int64)
+        slot[:, a] = slot_a
+        slot[:, b] = slot_b
+        count = np.full(h, 2, dtype=np.int64)
+        inside = np.full((h, n_cameras), -1, dtype=np.int64)
+        chi2 = np.zeros(h)
+        # gradients of u_a and u_b, for the uncertainty carried through the triangulation
+        _, gax, gaz = ga.project(x, z)
+        _, gbx, gbz = gb.project(x, z)
+        for c in range(n_cameras):
+            if c in (a, b):
+                continue
+            gc = geometry[c]
+            uc, gcx, gcz = gc.project(x, z)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                # moving u_a moves the point along b's ray (qb, -pb), and vice versa
+                da = (gcx * qb - gcz * pb) / (gax * qb - gaz * pb)
+                db = (gcx * qa - gcz * pa) / (gbx * qa - gbz * pa)
+                variance = sigma[c] ** 2 + (da * sigma[a]) ** 2 + (db * sigma[b]) ** 2
+                window = np.maximum(config.confirm_sigmas * np.sqrt(variance), config.floor_px)
+            query = np.where(gc.depth(x, z) > 0.0, uc, np.nan)
+            found, residual = sorted_u[c].nearest(scan, query)
+            with np.errstate(invalid="ignore"):
+                confirmed = np.abs(residual) <= window
+            if config.match_polarity:
+                confirmed &= (pol * polarity[scan, c, found]) >= 0
+            slot[:, c] = np.where(confirmed, found, -1)
+            count += confirmed
+            chi2 += np.where(confirmed, residual * residual / variance, 0.0)
+            # the image falls inside a candidate whose centre does not confirm it: perhaps a
+            # merged silhouette (step 4 decides)
+            with np.errstate(invalid="ignore"):
+                within = (query >= silhouette[0][scan, c, found]) & (
+                    query <= silhouette[1][scan, c, found]
+                )
+            if config.match_polarity:
+                within &= (pol * polarity[scan, c, found]) >= 0
+            inside[:, c] = np.where(within & ~confirmed, found, -1)
+        # with two cameras confirming, merged silhouettes may still bring it to ``needed``
+        possible = count + (inside >= 0).sum(axis=1) if config.support_merged else count
+        keep = possible >= needed
+        parts.append(_Hypotheses(scan[keep], slot[keep], count[keep], inside[keep], chi2[keep]))
+    return _Hypotheses(
+        np.concatenate([p.scan for p in parts]),
+        np.concatenate([p.slot for p in parts]),
+        np.concatenate([p.count for p in parts]),
+        np.concatenate([p.inside for p in parts]),
+        np.concatenate([p.chi2 for p in parts]),
+    )
+
+
+_BORROW_MAX_CHI2 = 1.0
+"""Largest mean squared normalised residual of a hypothesis that may borrow a detection."""
+
+
+def _first_per_scan(scan: NDArray[np.intp]) -> NDArray[np.bool_]:
+    """Mask of the first entry of each run of equal values in a sorted array."""
+    first = np.ones(scan.shape[0], dtype=bool)
+    first[1:] = scan[1:] != scan[:-1]
+    return first
+
+
+def _resolve(
+    hypotheses: _Hypotheses,
+    n: int,
+    k: int,
+    needed: int,
+    more: Callable[[IntArray, NDArray[np.bool_]], _Hypotheses] | None = None,
+) -> tuple[IntArray, IntArray, IntArray]:
+    """Step 4: each detection used once. Returns ``(scan, slot, support)`` of the accepted
+    points: the detection each camera gives (-1: none), and how many further cameras
+    support it with a merged silhouette (shared, not a detection used).
+
+    1. *Greedy*: hypotheses sorted by scan, then best first (more cameras, then smaller mean
+       squared normalised residual); each round accepts the first live hypothesis of every
+       scan confirmed by ``needed`` cameras and kills those that share a detection with it.
+    2. *Lending*: a killed hypothesis is accepted still when the detections left free give
+       it ``needed - 1`` cameras and one more can be taken from an accepted point that has
+       a camera to spare (more than ``needed``): two objects in line in one camera (a
+       contact wire below its messenger) share its single detection. Only a hypothesis
+       whose confirmations fit within one standard deviation on average may borrow, one
+       detection at most, so points of leftovers and a coincidence (ghosts) rarely gain; the
+       few that do last a scan, and tracking drops them.
+    3. *Merged silhouettes*: a detection no accepted point uses, whose silhouette holds the
+       image of an accepted point, images several objects in line (its centre and face
+       belong to none of them). It supports every hypothesis whose image it holds: one
+       with two free detections and enough such support is accepted. ``more(scans, used)``
+       gives the hypotheses of the camera pairs not enumerated yet (with the covering
+       pairs), for the scans that have such a silhouette and from the detections not used.
+    """
+    n_cameras = hypotheses.slot.shape[1]
+    extra = np.maximum(hypotheses.count - 2, 1).astype(np.float64)
+    badness = np.minimum(hypotheses.chi2 / extra, 999.0)
+    order = np.lexsort((badness, -hypotheses.count, hypotheses.scan))
+    scan = hypotheses.scan[order]
+    slot = hypotheses.slot[order]
+    inside = hypotheses.inside[order]
+    has = slot >= 0
+    slot_k = np.where(has, slot, k)  # k: the camera is not in the hypothesis
+    cameras = np.arange(n_cameras)[np.newaxis, :]
+    owner = np.full((n, n_cameras, k + 1), -1, dtype=np.int64)
+    accepted_rows: list[NDArray[np.intp]] = []  # into the sorted hypotheses
+    accepted_slot: list[IntArray] = []
+
+    def accept(rows: NDArray[np.intp], use: NDArray[np.bool_]) -> None:
+        first = sum(r.shape[0] for r in accepted_rows)
+        index = np.arange(first, first + rows.shape[0])[:, np.newaxis]
+        owner[scan[rows][:, np.newaxis], cameras, np.where(use, slot_k[rows], k)] = index
+        owner[:, :, k] = -1
+        accepted_rows.append(rows)
+        accepted_slot.append(np.where(use, slot[rows], -1))
+
+    def owners(rows: NDArray[np.intp]) -> IntArray:
+        return owner[scan[rows][:, np.newaxis], cameras, slot_k[rows]]  # (g, C), -1: free
+
+    # 1. greedy
+    taken = np.zeros(scan.shape[0], dtype=bool)
+    live = np.flatnonzero(hypotheses.count[order] >= needed)
+    while live.shape[0]:
+        chosen = live[_first_per_scan(scan[live])]
+        accept(chosen, has[chosen])
+        taken[chosen] = True
+        live = live[~(owners(live) >= 0).any(axis=1)]
+
+    # 2. lending
+    fits_well = badness[order] <= _BORROW_MAX_CHI2
+    live = np.flatnonzero(~taken & fits_well & (hypotheses.count[order] >= needed))
+    while live.shape[0] and accepted_rows:
+        cameras_of = (np.concatenate(accepted_slot) >= 0).sum(axis=1)
+        own = owners(live)
+        free = has[live] & (own < 0)
+        lendable = has[live] & (own >= 0) & (cameras_of[np.maximum(own, 0)] > needed)
+        eligible = (free.sum(axis=1) + 1 == needed) & lendable.any(axis=1)
+        live, free, lendable, own = (v[eligible] for v in (live, free, lendable, own))
+        if not live.shape[0]:
+            break
+        first = _first_per_scan(scan[live])
+        rows = live[first]
+        borrow = lendable[first] & (np.cumsum(lendable[first], axis=1) == 1)  # one camera
+        slots = np.concatenate(accepted_slot)
+        slots[own[first][borrow], np.nonzero(borrow)[1]] = -1
+        accepted_slot[:] = [slots]
+        accept(rows, free[first] | borrow)
+        taken[rows] = True
+        live = live[~first]
+
+    # 3. merged silhouettes
+    support = np.zeros(0, dtype=np.int64)
+    if accepted_rows:
+        rows_all = np.concatenate(accepted_rows)
+        held = inside[rows_all]  # (a, C): candidates holding an accepted point's image
+        merged = np.zeros((n, n_cameras, k + 1), dtype=bool)
+        merged[scan[rows_all][:, np.newaxis], cameras, np.where(held >= 0, held, k)] = True
+        merged[:, :, k] = False
+        merged &= owner[:, :, :] < 0  # used by no point
+        scans_with = np.flatnonzero(merged.any(axis=(1, 2)))
+        if more is not None and scans_with.shape[0]:
+            extra = more(scans_with, owner[:, :, :k] >= 0)
+            scan = np.concatenate([scan, extra.scan])
+            slot = np.concatenate([slot, extra.slot])
+            inside = np.concatenate([inside, extra.inside])
+            has = slot >= 0
+            slot_k = np.where(has, slot, k)
+            taken = np.concatenate([taken, np.zeros(extra.scan.shape[0], dtype=bool)])
+            count_all = np.concatenate([hypotheses.count[order], extra.count])
+        else:
+            count_all = hypotheses.count[order]
+
+        def supporting(rows: NDArray[np.intp]) -> IntArray:
+            held = inside[rows]
+            return np.asarray(
+                (merged[scan[rows][:, np.newaxis], cameras, np.where(held >= 0, held, k)]).sum(
+                    axis=1
+                ),
+                dtype=np.int64,
+            )
+
+        live = np.flatnonzero(~taken & (count_all >= 2))
+        live = live[np.argsort(scan[live], kind="stable")]
+        while live.shape[0]:
+            free_all = ~(owners(live) >= 0).any(axis=1)
+            eligible = free_all & (has[live].sum(axis=1) + supporting(live) >= needed)
+            live = live[eligible]
+            if not live.shape[0]:
+                break
+            first = _first_per_scan(scan[live])
+            accept(live[first], has[live[first]])
+            taken[live[first]] = True
+            live = live[~first]
+        rows_all = np.concatenate(accepted_rows)
+        support = supporting(rows_all)
+
+    if not accepted_rows:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, np.zeros((0, n_cameras), dtype=np.int64), empty
+    rows_all = np.concatenate(accepted_rows)
+    slots = np.concatenate(accepted_slot)
+    by_scan = np.argsort(scan[rows_all], kind="stable")
+    return (
+        scan[rows_all][by_scan].astype(np.int64),
+        slots[by_scan].astype(np.int64),
+        support[by_scan],
+    )
+
+
+def match(
+    cameras: Sequence[LineScanCamera],
+    candidates: Candidates,
+    sigma_px: FloatArray,
+    config: MatchConfig | None = None,
+) -> Matches:
+    """Match candidates across cameras and triangulate the confirmed points.
+
+    Parameters
+    ----------
+    cameras : sequence of LineScanCamera, length C
+        The rig's cameras, in the order of the candidates' camera axis.
+    candidates : Candidates
+        Padded candidates, ``(n, C, K)`` (:func:`pad_candidates`).
+    sigma_px : ndarray, shape (C,)
+        Standard deviation of each camera's candidate centres [px] (:func:`camera_sigmas_px`).
+    config : MatchConfig, optional
+        Settings; defaults to ``MatchConfig()``.
+
+    Returns
+    -------
+    Matches
+        Sorted by scan; within a scan in the order the conflicts were resolved (best first).
+    """
+    config = config or MatchConfig()
+    n, n_cameras, k = candidates.shape
+    if len(cameras) != n_cameras:
+        raise ValueError(f"{len(cameras)} cameras for candidates of {n_cameras}")
+    if n_cameras < 2:
+        raise ValueError("matching needs two cameras at least")
+    geometry = [_Geometry.of(camera) for camera in cameras]
+    span = 4.0 * max(camera.pixels for camera in cameras)
+    u = np.empty(candidates.centre_px.shape)
+    left = np.empty(u.shape)
+    right = np.empty(u.shape)
+    for c, camera in enumerate(cameras):
+        u[:, c, :] = _undistort(camera, candidates.centre_px[:, c, :])
+        left[:, c, :] = _undistort(camera, candidates.left_px[:, c, :])
+        right[:, c, :] = _undistort(camera, candidates.right_px[:, c, :])
+    needed = config.cameras_needed(n_cameras)
+    every_pair = list(itertools.combinations(range(n_cameras), 2))
+    pairs = (
+        covering_pairs([g.centre for g in geometry], needed)
+        if config.covering_pairs
+        else every_pair
+    )
+    others = [pair for pair in every_pair if pair not in pairs]
+    polarity = candidates.polarity
+    hypotheses = _enumerate(
+        geometry, u, (left, right), polarity, sigma_px, config, span, needed, pairs
+    )
+
+    def more(scans: IntArray, used: NDArray[np.bool_]) -> _Hypotheses:
+        """Hypotheses of the other pairs from the unused detections of some scans."""
+        free_u = np.where(used[scans], np.nan, u[scans])
+        found = _enumerate(
+            geometry,
+            free_u,
+            (left[scans], right[scans]),
+            polarity[scans],
+            sigma_px,
+            config,
+            span,
+            needed,
+            others,
+        )
+        return replace(found, scan=scans[found.scan])
+
+    use_more = more if (config.support_merged and others) else None
+    scan, slot, support = _resolve(hypotheses, n, k, needed, use_more)  # (m,), (m, C), (m,)
+    matches = _triangulate_matches(cameras, candidates, scan, slot, sigma_px, config, needed)
+    matches = replace(matches, cameras=matches.cameras + support)
+    if not (config.two_view and needed > 2):
+        return _separate(matches, config.min_separation_mm)
+    # step 6: two-view points of the detections left unused that saw a face, in scans that
+    # have some in two cameras at least (a wire missed by one camera while another is blind)
+    used = np.zeros(u.shape, dtype=bool)
+    cameras_index = np.broadcast_to(np.arange(n_cameras), slot.shape)
+    used[
+        np.broadcast_to(scan[:, np.newaxis], slot.shape)[slot >= 0],
+        cameras_index[slot >= 0],
+        slot[slot >= 0],
+    ] = True
+    # only detections with a face can make a two-view point (below)
+    with_face = np.isfinite(candidates.face_left_px) & np.isfinite(candidates.face_right_px)
+    free_u = np.where(used | ~with_face, np.nan, u)
+    rows = np.flatnonzero(np.isfinite(free_u).any(axis=2).sum(axis=1) >= 2)
+    if not rows.shape[0]:
+        return _separate(matches, config.min_separation_mm)
+    pairs_of = _enumerate(
+        geometry,
+        free_u[rows],
+        (left[rows], right[rows]),
+        polarity[rows],
+        sigma_px,
+        config,
+        span,
+        2,
+        every_pair,
+    )
+    only_two = pairs_of.count == 2
+    two = _triangulate_matches(
+        cameras,
+        candidates,
+        rows[pairs_of.scan[only_two]],
+        pairs_of.slot[only_two],
+        sigma_px,
+        config,
+        2,
+    )
+    # only from the worn face's edges seen by both: the wire's centre at night is that of
+    # its lit part, which differs between cameras by millimetres (a third camera would
+    # catch it, two cannot)
+    two = two.take(two.from_face)
+    two = replace(two, verified=np.zeros(two.count, dtype=bool))
+    merged = Matches(
+        **{
+            f: np.concatenate([getattr(matches, f), getattr(two, f)])
+            for f in Matches.__dataclass_fields__
+        }
+    )
+    return _separate(merged.take(np.argsort(merged.scan, kind="stable")), config.min_separation_mm)
+
+
+def _separate(matches: Matches, min_separation_mm: float) -> Matches:
+    """Drop the weaker of two points of a scan closer than ``min_separation_mm``.
+
+    Two wires that close touch, and then no camera tells them apart: two points there are
+    one wire seen twice, once through a merged silhouette's centre or face. The stronger
+    is kept: verified first, then more cameras, then the smaller reprojection RMS.
+    ``matches`` is sorted by scan.
+    """
+    m = matches.count
+    if m < 2:
+        return matches
+    order = np.lexsort(
+        (matches.reprojection_rms_px, -matches.cameras, ~matches.verified, matches.scan)
+    )
+    ranked = matches.take(order)  # by scan, strongest first
+    scan = ranked.scan
+    start = np.searchsorted(scan, scan, side="left")
+    slot = np.arange(m) - start
+    width = int(slot.max()) + 1
+    x = np.full((m, width), np.nan)
+    z = np.full((m, width), np.nan)
+    # for each point, the points of its scan ranked before it
+    rows = np.repeat(np.arange(m), width)
+    others = np.tile(np.arange(width), m)
+    before = others < slot[rows]
+    x[rows[before], others[before]] = ranked.x_mm[start[rows[before]] + others[before]]
+    z[rows[before], others[before]] = ranked.z_mm[start[rows[before]] + others[before]]
+    with np.errstate(invalid="ignore"):
+        near = np.hypot(x - ranked.x_mm[:, np.newaxis], z - ranked.z_mm[:, np.newaxis])
+        too_close = (near < min_separation_mm).any(axis=1)
+    # a point dropped does not suppress others (one level: pairs, the case that occurs)
+    kept = ranked.take(~too_close)
+    return kept.take(np.argsort(kept.scan, kind="stable"))
+
+
+_UNDISTORT_STEP_PX = 0.25
+"""Spacing of the undistortion table [px]: linear interpolation between its nodes is off
+by ``k1``-small second-order terms, below 1e-6 px for any lens the model is meant for."""
+
+_undistort_tables: dict[tuple[float, int, bytes], tuple[FloatArray, FloatArray]] = {}
+
+
+def _undistort(camera: LineScanCamera, u_px: FloatArray) -> FloatArray:
+    """``camera.undistort`` by interpolation in a table computed once per camera.
+
+    The radial model's inverse is smooth, so a table over ``[-W/2, 3W/2]`` at
+    ``_UNDISTORT_STEP_PX`` and linear interpolation give it to 1e-6 px at the cost of one
+    ``np.interp``; values outside the table (and NaN padding) go through the exact inverse.
+    """
+    if camera.k1 == 0.0:
+        return u_px.copy()
+    key = (camera.k1, camera.pixels, camera.matrix.tobytes())
+    table = _undistort_tables.get(key)
+    if table is None:
+        grid = np.arange(-0.5 * camera.pixels, 1.5 * camera.pixels, _UNDISTORT_STEP_PX)
+        table = (grid, camera.undistort(grid))
+        if np.all(np.isfinite(table[1])):
+            _undistort_tables[key] = table
+    grid, ideal = table
+    if not np.all(np.isfinite(ideal)):
+        return camera.undistort(u_px)
+    # the grid is uniform: the cell is found by arithmetic, not by a search
+    position = (u_px - grid[0]) / _UNDISTORT_STEP_PX
+    inside = (position >= 0.0) & (position < grid.shape[0] - 1)  # False for NaN
+    cell = np.where(inside, position, 0.0).astype(np.intp)
+    fraction = np.where(inside, position - cell, 0.0)
+    out = np.where(inside, ideal[cell] + fraction * (ideal[cell + 1] - ideal[cell]), np.nan)
+    outside = ~inside & np.isfinite(u_px)
+    if np.any(outside):
+        out[outside] = camera.undistort(u_px[outside])
+    return np.asarray(out, dtype=np.float64)
+
+
+def _put(values: FloatArray, rows: NDArray[np.intp], new: FloatArray) -> FloatArray:
+    out = values.copy()
+    out[rows] = new
+    return out
+
+
+def _pinhole(camera: LineScanCamera) -> LineScanCamera:
+    """The camera without its radial term (equation 8 alone)."""
+    if camera.k1 == 0.0:
+        return camera
+    return LineScanCamera(camera.name, camera.pixels, camera.matrix, 0.0)
+
+
+def _gather(values: FloatArray, scan: IntArray, slot: IntArray) -> FloatArray:
+    """``values[scan, c, slot[:, c]]`` per camera, NaN where ``slot`` is -1: ``(m, C)``."""
+    n_cameras = values.shape[1]
+    picked = values[scan[:, np.newaxis], np.arange(n_cameras)[np.newaxis, :], np.maximum(slot, 0)]
+    return np.where(slot >= 0, picked, np.nan)
+
+
+def _triangulate_matches(
+    cameras: Sequence[LineScanCamera],
+    candidates: Candidates,
+    scan: IntArray,
+    slot: IntArray,
+    sigma_px: FloatArray,
+    config: MatchConfig,
+    needed: int,
+) -> Matches:
+    """Step 5: each point from all its cameras (face midpoints where two saw the face).
+
+    Where a point has a camera to spare, the camera whose image lies furthest outside its
+    confirmation window from the point the other cameras give (leave-one-out) is dropped
+    and the point triangulated again: an outlier in one of the two cameras a hypothesis was
+    built from moves the hypothesis, and the other cameras can still fall in their windows
+    of it; at the least-squares point the outlier's error is shared among all the cameras.
+    """
+    centre = _gather(candidates.centre_px, scan, slot)
+    face_mid = 0.5 * (
+        _gather(candidates.face_left_px, scan, slot) + _gather(candidates.face_right_px, scan, slot)
+    )
+    face_views = np.isfinite(face_mid).sum(axis=1)
+    from_face = (face_views >= 2) & config.contact_from_faces
+    u = np.where(from_face[:, np.newaxis], face_mid, centre)
+    sigma = float(np.sqrt(np.mean(sigma_px**2))) if sigma_px.size else 0.1
+    # on ideal coordinates, with the distortion-free twins of the cameras: the same least
+    # squares (the radial term changes the pixel scale by a part in a thousand at most)
+    ideal = np.stack([_undistort(camera, u[:, c]) for c, camera in enumerate(cameras)], 1)
+    pinholes = [_pinhole(camera) for camera in cameras]
+    result = triangulate(pinholes, ideal, sigma_px=sigma)
+    window = np.maximum(config.confirm_sigmas * sigma_px, config.floor_px)[np.newaxis, :]
+    # leave-one-out, linearised: camera i's residual at the point the others give is
+    # r_i / (1 - h_i), h_i = j_iᵀ (JᵀJ)⁻¹ j_i its leverage (j_i its row of the Jacobian)
+    seen = np.isfinite(ideal)
+    residual = np.zeros(ideal.shape)
+    jx = np.zeros(ideal.shape)
+    jz = np.zeros(ideal.shape)
+    for c, camera in enumerate(pinholes):
+        u_c, du_dx, du_dz = camera.project_jacobian(result.x_mm, result.z_mm)
+        residual[:, c] = np.where(seen[:, c], u_c - ideal[:, c], 0.0)
+        jx[:, c] = np.where(seen[:, c], du_dx, 0.0)
+        jz[:, c] = np.where(seen[:, c], du_dz, 0.0)
+    n11 = (jx * jx).sum(axis=1)[:, np.newaxis]
+    n12 = (jx * jz).sum(axis=1)[:, np.newaxis]
+    n22 = (jz * jz).sum(axis=1)[:, np.newaxis]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        leverage = (jx * jx * n22 - 2.0 * jx * jz * n12 + jz * jz * n11) / (n11 * n22 - n12**2)
+        excess = np.abs(residual) / np.maximum(1.0 - leverage, 1e-3) / window
+    excess = np.where(seen & np.isfinite(excess), excess, 0.0)
+    spare = seen.sum(axis=1) > needed
+    worst = np.argmax(excess, axis=1)
+    drop = spare & (excess[np.arange(scan.shape[0]), worst] > 1.0)
+    rows, worst = np.flatnonzero(drop), worst[drop]
+    if rows.shape[0]:
+        slot = slot.copy()
+        slot[rows, worst] = -1
+        ideal[rows, worst] = np.nan
+        again = triangulate(pinholes, ideal[rows], sigma_px=sigma)
+        result = replace(
+            result,
+            **{
+                name: _put(getattr(result, name), rows, getattr(again, name))
+                for name in ("x_mm", "z_mm", "rms_reprojection_px", "sigma_x_mm", "sigma_z_mm")
+            },
+        )
+    return Matches(
+        scan=scan,
+        slot=slot,
+        x_mm=result.x_mm,
+        z_mm=result.z_mm,
+        from_face=from_face,
+        cameras=(slot >= 0).sum(axis=1).astype(np.int64),
+        reprojection_rms_px=result.rms_reprojection_px,
+        sigma_x_mm=result.sigma_x_mm,
+        sigma_z_mm=result.sigma_z_mm,
+        verified=np.ones(scan.shape[0], dtype=bool),
+    )
+
+
+# -- the worn face ----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class FaceWidths:
+    """The worn face's width of each match, per camera and combined.
+
+    Attributes
+    ----------
+    per_camera_mm : ndarray, shape (m, C)
+        Width from each confirming camera's face edges and its model [mm]; NaN where the
+        camera did not see the face.
+    table_ratio : ndarray, shape (m, C)
+        That width over the look-up table's (``ResolutionTable.at × width_px``) [-]: the
+        cross-check of the camera model against the calibration targets.
+    width_mm : ndarray, shape (m,)
+        Combined width [mm]: median of the cameras, then the mean weighted by each camera's
+        precision (``1 / resolution²``) over the cameras within ``tolerance`` of the median,
+        when two cameras at least agree. 0.0 when no confirming camera saw a face (a new
+        wire, or a face narrower than the features resolve, about two pixels: 0.6 mm, which
+        leaves the residual thickness within 0.01 mm of the new wire's); NaN when faces were
+        seen but fewer than two cameras agree (not measured).
+    spread_mm : ndarray, shape (m,)
+        Largest difference of an agreeing camera from the combined width [mm].
+    cameras : ndarray of int, shape (m,)
+        Cameras that agreed (used in ``width_mm``).
+    """
+
+    per_camera_mm: FloatArray
+    table_ratio: FloatArray
+    width_mm: FloatArray
+    spread_mm: FloatArray
+    cameras: IntArray
+
+
+def _ray_on_plane(
+    camera: LineScanCamera,
+    u_px: FloatArray,
+    x0: FloatArray,
+    z0: FloatArray,
+    dx: FloatArray,
+    dz: FloatArray,
+) -> FloatArray:
+    """Parameter ``t`` where the ray of ``u_px`` meets the line ``(x0, z0) + t (dx, dz)``.
+
+    The ray of ideal coordinate ``u`` is the line ``p x + q z = k`` (equation 10).
+    """
+    p, q, k = _line_coefficients(camera.matrix, _undistort(camera, u_px))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (k - p * x0 - q * z0) / (p * dx + q * dz)
+    return np.asarray(t, dtype=np.float64)
+
+
+def face_widths_mm(
+    cameras: Sequence[LineScanCamera],
+    tables: Sequence[ResolutionTable],
+    candidates: Candidates,
+    matches: Matches,
+    roll_rad: FloatArray | None = None,
+    *,
+    tolerance_mm: float = 0.25,
+    max_width_mm: float = 14.8,
+) -> FaceWidths:
+    """Width of each match's worn face from every confirming camera, and combined.
+
+    Parameters
+    ----------
+    cameras : sequence of LineScanCamera, length C
+    tables : sequence of ResolutionTable, length C
+        Each camera's look-up table (the cross-check).
+    candidates : Candidates
+        The candidates the matches refer to.
+    matches : Matches
+        The matched points (``x_mm``, ``z_mm``: the face's centre).
+    roll_rad : ndarray, shape (n,), optional
+        The car body's roll per scan of the block [rad] (positive: left side up): the face,
+        horizontal in the track frame, runs along ``(cos φ, sin φ)`` in the roof frame. None:
+        no roll.
+    tolerance_mm : float
+        Cameras further than this from the median width are left out of the mean [mm].
+    max_width_mm : float
+        Widest face a contact wire can have (its width) [mm]: a wider "face" is a fitting's
+        (a clamp's flat underside), and that camera's width is left out.
+
+    Returns
+    -------
+    FaceWidths
+    """
+    m = matches.count
+    n_cameras = len(cameras)
+    left = _gather(candidates.face_left_px, matches.scan, matches.slot)
+    right = _gather(candidates.face_right_px, matches.scan, matches.slot)
+    phi = np.zeros(m) if roll_rad is None else np.asarray(roll_rad, np.float64)[matches.scan]
+    dx, dz = np.cos(phi), np.sin(phi)
+    per_camera = np.full((m, n_cameras), np.nan)
+    faces = np.zeros(m, dtype=np.int64)  # cameras that saw a face, too wide or not
+    ratio = np.full((m, n_cameras), np.nan)
+    resolution = np.full((m, n_cameras), np.nan)
+    x, z = matches.x_mm, matches.z_mm
+    for c, (camera, table) in enumerate(zip(cameras, tables, strict=True)):
+        geometry = _Geometry.of(camera)
+        seen = np.isfinite(left[:, c]) & np.isfinite(right[:, c]) & np.isfinite(x)
+        if not np.any(seen):
+            continue
+        rows = np.flatnonzero(seen)
+        t_left = _ray_on_plane(camera, left[rows, c], x[rows], z[rows], dx[rows], dz[rows])
+        t_right = _ray_on_plane(camera, right[rows, c], x[rows], z[rows], dx[rows], dz[rows])
+        width = np.abs(t_right - t_left)
+        per_camera[rows, c] = np.where(width <= max_width_mm, width, np.nan)
+        faces[rows] += 1
+        width_px = np.abs(right[rows, c] - left[rows, c])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio[rows, c] = width / (table.at(x[rows], z[rows]) * width_px)
+        _, du_dx, _ = geometry.project(x[rows], z[rows])
+        resolution[rows, c] = 1.0 / np.abs(du_dx)  # ideal model: enough for a weight
+    median = _row_median(per_camera)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        agree = np.abs(per_camera - median[:, np.newaxis]) <= tolerance_mm
+        weight = np.where(agree, 1.0 / resolution**2, 0.0)
+        total = weight.sum(axis=1)
+        combined = (weight * np.nan_to_num(per_camera)).sum(axis=1) / total
+        deviation = np.where(agree, np.abs(per_camera - combined[:, np.newaxis]), 0.0)
+    agreeing = agree.sum(axis=1)
+    # two cameras at least must agree on a face; none seeing one is a face below resolution
+    combined = np.where(agreeing >= 2, combined, np.where(faces == 0, 0.0, np.nan))
+    combined = np.where(np.isfinite(x), combined, np.nan)
+    spread = np.where(agreeing >= 2, deviation.max(axis=1, initial=0.0), np.nan)
+    return FaceWidths(
+        per_camera_mm=per_camera,
+        table_ratio=ratio,
+        width_mm=combined,
+        spread_mm=spread,
+        cameras=agreeing.astype(np.int64),
+    )
+
+
+def _row_median(values: FloatArray) -> FloatArray:
+    """Median of the finite values of each row of a narrow ``(m, C)`` array (NaN if none)."""
+    ordered = np.sort(np.where(np.isfinite(values), values, np.inf), axis=1)
+    count = np.isfinite(values).sum(axis=1)
+    low = np.take_along_axis(ordered, np.maximum((count - 1) // 2, 0)[:, np.newaxis], 1)[:, 0]
+    high = np.take_along_axis(ordered, np.maximum(count // 2, 0)[:, np.newaxis], 1)[:, 0]
+    with np.errstate(invalid="ignore"):
+        return np.where(count > 0, 0.5 * (low + high), np.nan)

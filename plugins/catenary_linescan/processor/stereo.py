@@ -1,0 +1,299 @@
+"""The line-scan stereovision processor: scan blocks + rig calibration -> contact wires.
+
+The paper's processing module (section 3.3, figure 11, steps 2-3, and section 3.2, steps
+1-5), streaming over blocks of scans:
+
+1. profile features of every camera's lines (:mod:`.features`);
+2. stereo matching across the cameras and triangulation of the confirmed points
+   (:mod:`.matching`), with the worn face's width in mm from every confirming camera;
+3. wire selection along the run (:mod:`.tracking`): messengers out by height, droppers and
+   steady arms out by continuity, one wire number per contact wire.
+
+The output is :class:`catenary.domain.WireObservations` in the roof frame: the vehicle
+compensation, the stagger-angle correction (:mod:`catenary.wear`) and the residual thickness
+(the run's wire type) follow in the pipeline. ``cameras`` is the number of cameras that
+confirmed the point (a merged silhouette's support included): 3 or more, or 2 where a
+tracked wire was seen, with its worn face, by two cameras only. ``wear_width_mm`` is the worn
+face's width in the scanning plane from the cameras that agree on it (0.0: no face seen, a
+new wire or one narrower than the features resolve; NaN: faces seen but not agreed on).
+Tracking holds back the points of the last metres until they are decided:
+:meth:`LineScanProcessor.finish` returns them at the end of the run.
+
+``create(rig_path, settings)`` is the factory of the ``Processor`` registration. Settings
+(all optional):
+
+=========================  ====================================================================
+``min_cameras``            cameras that must confirm a point (default: 3 with three or more)
+``max_candidates``         candidates kept per scan and camera (24)
+``feature_sigma_px``       features' centre uncertainty for the confirmation window (0.15)
+``confirm_sigmas``         confirmation window in standard deviations (4)
+``floor_px``               narrowest confirmation window (0.6)
+``wire_width_mm``          [min, max] contact wire widths the features look for ([10.6, 14.8])
+``min_track_m``            shortest track taken for a wire (``tracking.MIN_TRACK_M``)
+``max_gap_m``              longest gap a track bridges (1.0)
+``messenger_gap_mm``       height above the lowest contact wire of a messenger (300)
+``width_tolerance_mm``     cameras further than this from the median face width are left out
+``table_tolerance``        largest relative difference between the camera model's and the
+                           look-up table's resolution accepted before a warning (0.03)
+=========================  ====================================================================
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from catenary.domain import ScanBlock, WireObservations
+from catenary.errors import UserError
+from catenary.vehicle import roll_rad
+from catenary_linescan.rig import Rig, read_rig
+
+from .features import FeatureConfig, extract_features
+from .matching import (
+    MatchConfig,
+    camera_sigmas_px,
+    face_widths_mm,
+    match,
+    pad_candidates,
+)
+from .tracking import TrackedPoints, TrackingConfig, WireTracker
+
+__all__ = ["LineScanProcessor", "ProcessorConfig", "create", "empty_observations"]
+
+log = logging.getLogger(__name__)
+
+CONTACT_WIRE_WIDTH_MM = (10.6, 14.8)
+"""Narrowest and widest contact wire the features look for: EN 50149 AC-80 to AC-150 and
+TB/T 2809 85 to 150 (``reference/wire-profiles.md``)."""
+
+
+@dataclass(frozen=True)
+class ProcessorConfig:
+    """Settings of :class:`LineScanProcessor` (see the module docstring for the keys).
+
+    ``features`` None derives the feature settings from the rig: the contact wire widths
+    ``wire_width_mm`` at the finest and coarsest resolution of the rig's look-up tables.
+    """
+
+    features: FeatureConfig | None = None
+    matching: MatchConfig = field(default_factory=MatchConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    wire_width_mm: tuple[float, float] = CONTACT_WIRE_WIDTH_MM
+    width_tolerance_mm: float = 0.25
+    table_tolerance: float = 0.03
+
+    @classmethod
+    def from_settings(cls, settings: Mapping[str, Any]) -> ProcessorConfig:
+        """Parse the processor settings (module docstring); ``UserError`` names a bad key."""
+        matching_keys = {
+            "min_cameras": int,
+            "max_candidates": int,
+            "feature_sigma_px": float,
+            "confirm_sigmas": float,
+            "floor_px": float,
+        }
+        tracking_keys = {"min_track_m": float, "max_gap_m": float, "messenger_gap_mm": float}
+        own_keys = {"width_tolerance_mm": float, "table_tolerance": float}
+        known = {**matching_keys, **tracking_keys, **own_keys, "wire_width_mm": list}
+        unknown = sorted(set(settings) - set(known))
+        if unknown:
+            raise UserError(
+                f"unknown line-scan processor setting {unknown[0]!r} (known: {', '.join(known)})"
+            )
+        values: dict[str, Any] = {}
+        for key, value in settings.items():
+            kind = known[key]
+            if kind is list:
+                try:
+                    low, high = (float(v) for v in value)
+                except (TypeError, ValueError):
+                    raise UserError(
+                        f"processor setting {key} = {value!r}: expected [min, max] in mm"
+                    ) from None
+                if not 0.0 < low <= high:
+                    raise UserError(f"processor setting {key} = {value!r}: need 0 < min <= max")
+                values[key] = (low, high)
+                continue
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise UserError(f"processor setting {key} = {value!r}: expected a number")
+            if kind is int and value != int(value):
+                raise UserError(f"processor setting {key} = {value!r}: expected an integer")
+            number = kind(value)
+            if not math.isfinite(number) or number <= 0:
+                raise UserError(f"processor setting {key} = {value!r}: expected a positive value")
+            values[key] = number
+        matching = replace(MatchConfig(), **{k: v for k, v in values.items() if k in matching_keys})
+        tracking = replace(
+            TrackingConfig(), **{k: v for k, v in values.items() if k in tracking_keys}
+        )
+        own = {k: v for k, v in values.items() if k in own_keys or k == "wire_width_mm"}
+        return cls(matching=matching, tracking=tracking, **own)
+
+
+def empty_observations() -> WireObservations:
+    """A :class:`WireObservations` with no rows."""
+    return WireObservations(
+        scan=np.zeros(0, np.int64),
+        wire=np.zeros(0, np.int64),
+        x_roof_mm=np.zeros(0),
+        z_roof_mm=np.zeros(0),
+        wear_width_mm=np.zeros(0),
+        cameras=np.zeros(0, np.int64),
+        reprojection_rms_px=np.zeros(0),
+    )
+
+
+def _observations(points: TrackedPoints) -> WireObservations:
+    columns = points.columns
+    return WireObservations(
+        scan=points.scan,
+        wire=points.wire,
+        x_roof_mm=points.x_mm,
+        z_roof_mm=points.z_mm,
+        wear_width_mm=np.asarray(columns["wear_width_mm"], dtype=np.float64),
+        cameras=np.asarray(columns["cameras"], dtype=np.int64),
+        reprojection_rms_px=np.asarray(columns["reprojection_rms_px"], dtype=np.float64),
+    )
+
+
+class LineScanProcessor:
+    """The paper's processor over any rig (the ``BlockProcessor`` protocol).
+
+    Parameters
+    ----------
+    rig : Rig
+        The calibrated rig: cameras (two at least), their reprojection RMS and look-up
+        tables, and the vehicle geometry (the sensor baseline, for the body's roll).
+    config : ProcessorConfig, optional
+
+    Notes
+    -----
+    Blocks must come in run order (``first_scan`` increasing), each holding every camera of
+    the rig. Each :meth:`process` returns the observations decided so far (possibly of
+    earlier blocks' scans, possibly none); :meth:`finish` returns the rest.
+    """
+
+    def __init__(self, rig: Rig, config: ProcessorConfig | None = None) -> None:
+        self.rig = rig
+        self.config = config or ProcessorConfig()
+        self.names = list(rig.cameras)
+        if len(self.names) < 2:
+            raise UserError(f"rig {rig.vehicle.name!r} has {len(self.names)} camera; need two")
+        self.cameras = [rig.cameras[name].camera for name in self.names]
+        self.tables = [rig.cameras[name].resolution for name in self.names]
+        self.sigma_px = camera_sigmas_px(
+            [rig.cameras[name].reprojection_rms_px for name in self.names],
+            self.config.matching.feature_sigma_px,
+        )
+        self.features = self.config.features or self._feature_config()
+        self.tracker = WireTracker(self.config.tracking)
+        self._next_scan = 0
+        self._ratio_sum = np.zeros(len(self.names))
+        self._ratio_count = np.zeros(len(self.names), dtype=np.int64)
+        self._warned = np.zeros(len(self.names), dtype=bool)
+
+    def _feature_config(self) -> FeatureConfig:
+        fine = min(float(np.min(t.mm_per_px)) for t in self.tables)
+        coarse = max(float(np.max(t.mm_per_px)) for t in self.tables)
+        return FeatureConfig.from_resolution(self.config.wire_width_mm, (fine, coarse))
+
+    @property
+    def table_check(self) -> dict[str, float]:
+        """Per camera, the mean ratio of the camera model's face widths to the look-up
+        table's over every face measured so far (1.0: they agree; NaN: no face yet)."""
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = self._ratio_sum / self._ratio_count
+        return dict(zip(self.names, mean.tolist(), strict=True))
+
+    def process(self, block: ScanBlock) -> WireObservations:
+        """Process one block of scans; return the observations now decided."""
+        missing = [name for name in self.names if name not in block.cameras]
+        if missing:
+            raise UserError(
+                f"scan block at scan {block.first_scan} has no camera {missing[0]!r} "
+                f"of rig {self.rig.vehicle.name!r} (cameras: {', '.join(block.cameras)})"
+            )
+        if block.first_scan < self._next_scan:
+            raise ValueError(
+                f"block at scan {block.first_scan} after scans up to {self._next_scan - 1}"
+            )
+        n = block.scans
+        if n == 0:
+            return empty_observations()
+        self._next_scan = block.first_scan + n
+        features = []
+        for name in self.names:
+            lines = block.cameras[name]
+            if lines.lines.shape[0] != n:
+                raise UserError(
+                    f"camera {name!r} has {lines.lines.shape[0]} lines in a block of {n} scans"
+                )
+            features.append(extract_features(lines.lines, lines.bit_depth, config=self.features))
+        candidates = pad_candidates(features, n, self.config.matching.max_candidates)
+        matches = match(self.cameras, candidates, self.sigma_px, self.config.matching)
+        vehicle = block.vehicle
+        roll = roll_rad(vehicle.left_mm, vehicle.right_mm, self.rig.vehicle.sensor_baseline_mm)
+        roll = np.where(np.isfinite(roll), roll, 0.0)
+        if roll.shape != (n,):
+            roll = np.zeros(n)
+        widths = face_widths_mm(
+            self.cameras,
+            self.tables,
+            candidates,
+            matches,
+            roll,
+            tolerance_mm=self.config.width_tolerance_mm,
+            max_width_mm=self.config.wire_width_mm[1],
+        )
+        self._check_tables(widths.table_ratio)
+        valid = np.isfinite(matches.x_mm) & np.isfinite(matches.z_mm)
+        scan = matches.scan[valid]
+        released = self.tracker.push(
+            block.first_scan + scan,
+            block.position_m[scan],
+            matches.x_mm[valid],
+            matches.z_mm[valid],
+            {
+                "wear_width_mm": widths.width_mm[valid],
+                "cameras": matches.cameras[valid],
+                "reprojection_rms_px": matches.reprojection_rms_px[valid],
+            },
+            verified=matches.verified[valid],
+            last_scan=block.first_scan + n - 1,
+            last_position_m=float(block.position_m[-1]),
+        )
+        return _observations(released)
+
+    def finish(self) -> WireObservations:
+        """The observations tracking still held back (call once, after the last block)."""
+        return _observations(self.tracker.finish())
+
+    def _check_tables(self, ratio: np.ndarray[Any, Any]) -> None:
+        """Accumulate the model-versus-table cross-check; warn once per camera when off."""
+        seen = np.isfinite(ratio)
+        self._ratio_sum += np.where(seen, ratio, 0.0).sum(axis=0)
+        self._ratio_count += seen.sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean = self._ratio_sum / self._ratio_count
+        off = (self._ratio_count >= 100) & (np.abs(mean - 1.0) > self.config.table_tolerance)
+        for c in np.flatnonzero(off & ~self._warned):
+            log.warning(
+                "camera %r: face widths from the camera model differ from the look-up "
+                "table's by %+.1f %% (tolerance %.1f %%): check the rig calibration",
+                self.names[c],
+                100.0 * (mean[c] - 1.0),
+                100.0 * self.config.table_tolerance,
+            )
+            self._warned[c] = True
+
+
+def create(rig_path: Path, settings: Mapping[str, Any]) -> LineScanProcessor:
+    """The ``Processor`` registration's factory: read the rig, parse the settings."""
+    rig = read_rig(rig_path)
+    return LineScanProcessor(rig, ProcessorConfig.from_settings(settings))

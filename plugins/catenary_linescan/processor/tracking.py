@@ -1,0 +1,935 @@
+"""Wire selection along the run (the paper's section 3.2, step 5): tracks and wire numbers.
+
+The matching gives, per scan, every point three cameras agree on (and unverified points of
+two, where both saw a worn face): contact wires, messengers, and in a few scans droppers,
+clamps, steady arms and registration tubes. A contact wire is continuous along the track;
+the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 mm, a clamp
+30-50 mm), and messengers run higher. So the tracker
+
+1. **links** the points of consecutive scans (vectorised over the block): mutual nearest
+   neighbours within a tight gate (``link_mm`` plus the wire's possible slope times the
+   distance travelled), which chains them into fragments (pointer jumping to each chain's
+   first point); a fitting that takes the wire's place for a few scans jumps out of it;
+2. **joins** fragments to the open tracks across gaps of up to ``max_gap_m`` (a missed
+   detection, a clamp, a stretch where a blinded camera and a miss leave fewer than three
+   views), predicting each track's end linearly (one loop step per fragment, not per point).
+   A longer fragment takes a track over from a shorter one that had continued it where the
+   wire was missed (a clamp's few points), and a short excursion out of the tight gate that
+   the track comes back from is undone; the fragment set apart is a track of its own. A
+   fragment of unverified (two-view) points only continues a track within the tight gate;
+3. **confirms** a track when it spans ``min_track_m`` of track (``MIN_TRACK_M``) with points
+   in ``min_coverage`` of its scans: fittings never do; a track that ends unconfirmed is
+   dropped with its points;
+4. **removes messengers by height** at release: a point more than ``messenger_gap_mm`` above
+   the lowest confirmed track at its scan (each track's height interpolated across the
+   scans where it was missed) is not a contact wire — a messenger, or a contact wire raised
+   out of running at an overlap's end on its way to its anchor;
+5. **numbers** each track at its first contact point (0, 1, ... in order of appearance) and
+   keeps the number through the run: a track that ended up to ``reidentify_m`` before and
+   near where the new one starts hands its number over;
+6. **releases** the points of every scan once no undecided track could still claim it and
+   ``max_gap_m`` of track beyond it has been seen (so that the result does not depend on
+   how the run is cut into blocks): each :meth:`WireTracker.push` returns what is decided,
+   :meth:`WireTracker.finish` the rest.
+
+Everything the tracker holds back spans a few metres of track before the last block's end
+(``min_track_m`` and ``max_gap_m`` twice at most), so its memory is bounded whatever the
+run's length.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["MIN_TRACK_M", "TrackedPoints", "TrackingConfig", "WireTracker", "link_fragments"]
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+MIN_TRACK_POINTS = 5
+"""Fewest points of a track accepted as a wire."""
+
+_FAR_MM = 400.0
+"""Farther than this from a track's end no gate reaches [mm] (the gap gate's 20 mm + 40 mm/m
+and a slope of 150 mm/m over a metre's gap stay well below)."""
+
+UNVERIFIED_REACH_M = 0.25
+"""Farthest an unverified (two-view) point may lie from its track's nearest verified point
+[m]: continuity checks a point against its neighbours, not against a stretch of its own."""
+
+REIDENTIFY_GROWTH_M = 10.0
+"""Gap beyond which the re-identification gate stops growing [m] (to 460 mm by default)."""
+
+EXCURSION_M = 0.15
+"""Longest excursion of a track that is undone when the track comes back [m]: a fitting's
+face (a clamp's, 30-50 mm along the track) taking the wire's place, with room."""
+
+MIN_TRACK_M = 0.5
+"""Shortest track accepted as a wire [m]. Fittings cut by the scanning plane are short along
+the track (a dropper 5 mm, a steady arm 26 mm, a dropper clamp 30 mm, a registration clamp or
+tube 42-50 mm: ``reference/wire-profiles.md`` and the simulator's scene), ten times below this;
+a contact wire is continuous for hundreds of metres. Half a metre is 30 scans at 60 km/h and
+1000 scans/s, and 7 at 250 km/h with 5,300 scans/s, still enough to tell a wire from noise."""
+
+
+@dataclass(frozen=True)
+class TrackingConfig:
+    """Settings of the wire tracker (lengths along the track in m, across it in mm).
+
+    Attributes
+    ----------
+    link_mm : float
+        Largest jump of a wire between consecutive scans at standstill, in ``x`` and in ``z``
+        [mm]: the noise of the points (tenths of a millimetre) and the body's motion in a
+        millisecond, with room. A clamp or a fitting that takes the wire's place in a scan
+        moves the point by more (a dropper clamp's face 6 mm up) and breaks the chain.
+    x_mm_per_m, z_mm_per_m : float
+        Extra jump per metre travelled [mm/m]: a wire's angle in plan (150 mm/m is 8.5°, a
+        turnout's) and its rise (40 mm/m: a wire rising to its anchor).
+    gate_mm : float
+        Largest distance between a track's predicted end and a fragment that continues it
+        across a gap [mm] (``x`` and ``z``), plus ``gap_gate_mm_per_m`` [mm/m] of the gap.
+    max_gap_m : float
+        Longest gap in a track that is bridged [m].
+    min_track_m : float
+        Shortest track accepted as a wire [m] (``MIN_TRACK_M``).
+    min_coverage : float
+        Fraction of its scans in which a track must have a point to be a wire: noise does
+        not chain across gaps into a track.
+    messenger_gap_mm : float
+        Height above the lowest contact wire from which a wire is a messenger [mm]: below the
+        400 mm a messenger keeps above its contact wire at its lowest (the shortest dropper
+        mid-span), well above the noise of the heights.
+    reidentify_m : float
+        A contact wire track that ended this recently [m] (two spans: a wire raised out of
+        running at an overlap can leave the view and come back) and a new one whose first
+        contact point lies within ``reidentify_mm + gap_gate_mm_per_m · min(gap,
+        REIDENTIFY_GROWTH_M)`` of where it ended are the same wire.
+    reidentify_mm : float
+        See ``reidentify_m`` [mm].
+    """
+
+    link_mm: float = 3.0
+    x_mm_per_m: float = 150.0
+    z_mm_per_m: float = 40.0
+    gate_mm: float = 20.0
+    gap_gate_mm_per_m: float = 40.0
+    max_gap_m: float = 1.0
+    min_track_m: float = MIN_TRACK_M
+    min_coverage: float = 0.5
+    messenger_gap_mm: float = 300.0
+    reidentify_m: float = 100.0
+    reidentify_mm: float = 60.0
+
+
+@dataclass(frozen=True, eq=False)
+class TrackedPoints:
+    """Points released by the tracker, ``m`` rows sorted by scan, then by ``x``.
+
+    ``scan`` is the run's scan index, ``wire`` the wire number; ``columns`` carries the
+    caller's per-point values (as pushed) through.
+    """
+
+    scan: IntArray
+    wire: IntArray
+    position_m: FloatArray
+    x_mm: FloatArray
+    z_mm: FloatArray
+    columns: dict[str, NDArray[np.generic]] = field(default_factory=dict)
+
+    @property
+    def rows(self) -> int:
+        return int(self.scan.shape[0])
+
+
+def link_fragments(
+    scan: IntArray,
+    position_m: FloatArray,
+    x_mm: FloatArray,
+    z_mm: FloatArray,
+    link_mm: float,
+    x_mm_per_m: float,
+    z_mm_per_m: float,
+) -> IntArray:
+    """Chain points of consecutive scans into fragments (step 1 of the module docstring).
+
+    Parameters
+    ----------
+    scan : ndarray of int, shape (m,)
+        Scan index of each point, non-decreasing.
+    position_m : ndarray, shape (m,)
+        Position along the track of each point's scan [m].
+    x_mm, z_mm : ndarray, shape (m,)
+        Roof-frame position [mm].
+    link_mm : float
+        Largest jump between consecutive scans at standstill, in ``x`` and in ``z`` [mm].
+    x_mm_per_m, z_mm_per_m : float
+        Extra jump per metre travelled in ``x`` and in ``z`` [mm/m].
+
+    Returns
+    -------
+    ndarray of int, shape (m,)
+        For each point the index of its fragment's first point: points of one fragment share
+        it. A point links to one in the next scan when each is the other's nearest (largest
+        of ``|Δx|`` and ``|Δz|`` over their gates) and both jumps are within their gates.
+    """
+    m = scan.shape[0]
+    if m == 0:
+        return np.zeros(0, dtype=np.int64)
+    first_scan = int(scan[0])
+    local = scan - first_scan
+    n = int(local[-1]) + 1
+    start = np.searchsorted(local, np.arange(n + 1))
+    slot = np.arange(m) - start[local]
+    width = int(slot.max()) + 1
+    index = np.full((n + 1, width), -1, dtype=np.int64)  # one empty row past the end
+    index[local, slot] = np.arange(m)
+    xs = np.full(index.shape, np.nan)
+    zs = np.full(index.shape, np.nan)
+    ps = np.full(n + 1, np.nan)
+    xs[local, slot] = x_mm
+    zs[local, slot] = z_mm
+    ps[local] = position_m
+    step = np.abs(ps[1:] - ps[:-1])[:, np.newaxis, np.newaxis]  # (n, 1, 1)
+    dx = np.abs(xs[1:, np.newaxis, :] - xs[:-1, :, np.newaxis])  # (n, this, next)
+    dz = np.abs(zs[1:, np.newaxis, :] - zs[:-1, :, np.newaxis])
+    with np.errstate(invalid="ignore"):
+        distance = np.fmax(dx / (link_mm + x_mm_per_m * step), dz / (link_mm + z_mm_per_m * step))
+    distance = np.where(np.isnan(distance), np.inf, distance)
+    forward = np.argmin(distance, axis=2)  # (n, this): nearest in the next scan
+    backward = np.argmin(distance, axis=1)  # (n, next): nearest in this scan
+    best = np.take_along_axis(distance, forward[:, :, np.newaxis], axis=2)[:, :, 0]
+    mutual = np.take_along_axis(backward, forward, axis=1) == np.arange(width)[np.newaxis, :]
+    link = mutual & (best <= 1.0) & (index[:-1] >= 0)
+    rows, cols = np.nonzero(link)
+    predecessor = np.full(m, -1, dtype=np.int64)
+    predecessor[index[rows + 1, forward[rows, cols]]] = index[rows, cols]
+    root = np.where(predecessor >= 0, predecessor, np.arange(m))
+    while True:  # pointer jumping: log2(longest chain) rounds
+        jumped = root[root]
+        if np.array_equal(jumped, root):
+            break
+        root = jumped
+    return root
+
+
+@dataclass
+class _Track:
+    """A track being followed (internal state of :class:`WireTracker`)."""
+
+    id: int
+    start_m: float
+    start_scan: int
+    end_m: float
+    end_scan: int
+    end_x: float
+    end_z: float
+    points: int = 0
+    slope_x: float = 0.0  # mm per m
+    slope_z: float = 0.0
+    confirmed: bool = False
+    wire: int = -1
+    # the last fragment joined (its first scan, its points, its index in the block being
+    # added or -1) and the track's end before it, so that a longer fragment can take over
+    last_start_scan: int = -1
+    last_start_m: float = 0.0
+    last_jumped: bool = False
+    last_points: int = 0
+    last_fragment: int = -1
+    before: tuple[float, int, float, float, float, float, int] | None = None
+
+    def snapshot(self) -> tuple[float, int, float, float, float, float, int]:
+        return (
+            self.end_m,
+            self.end_scan,
+            self.end_x,
+            self.end_z,
+            self.slope_x,
+            self.slope_z,
+            self.points,
+        )
+
+    def restore(self, state: tuple[float, int, float, float, float, float, int]) -> None:
+        (
+            self.end_m,
+            self.end_scan,
+            self.end_x,
+            self.end_z,
+            self.slope_x,
+            self.slope_z,
+            self.points,
+        ) = state
+
+    @property
+    def length_m(self) -> float:
+        return self.end_m - self.start_m
+
+
+@dataclass
+class _Store:
+    """Points held back, columnar."""
+
+    scan: IntArray
+    position_m: FloatArray
+    x_mm: FloatArray
+    z_mm: FloatArray
+    track: IntArray
+    verified: NDArray[np.bool_]
+    columns: dict[str, NDArray[np.generic]]
+
+    _ARRAYS = ("scan", "position_m", "x_mm", "z_mm", "track", "verified")
+
+    @classmethod
+    def empty(cls) -> _Store:
+        return cls(
+            np.zeros(0, np.int64),
+            np.zeros(0),
+            np.zeros(0),
+            np.zeros(0),
+            np.zeros(0, np.int64),
+            np.zeros(0, bool),
+            {},
+        )
+
+    def append(self, other: _Store) -> None:
+        for name in self._ARRAYS:
+            setattr(self, name, np.concatenate([getattr(self, name), getattr(other, name)]))
+        if not self.columns:
+            self.columns = {k: v.copy() for k, v in other.columns.items()}
+        else:
+            for key in self.columns:
+                self.columns[key] = np.concatenate([self.columns[key], other.columns[key]])
+
+    def take(self, rows: NDArray[np.bool_]) -> _Store:
+        """The rows where ``rows`` is true (a copy)."""
+        taken = _Store.empty()
+        for name in self._ARRAYS:
+            setattr(taken, name, getattr(self, name)[rows])
+        taken.columns = {k: v[rows] for k, v in self.columns.items()}
+        return taken
+
+    def split(self, rows: NDArray[np.bool_]) -> _Store:
+        """Remove and return the rows where ``rows`` is true."""
+        taken = self.take(rows)
+        kept = self.take(~rows)
+        for name in self._ARRAYS:
+            setattr(self, name, getattr(kept, name))
+        self.columns = kept.columns
+        return taken
+
+
+class WireTracker:
+    """Streaming wire selection (module docstring): push blocks of points, get wires back."""
+
+    def __init__(self, config: TrackingConfig | None = None) -> None:
+        self.config = config or TrackingConfig()
+        self._store = _Store.empty()
+        self._open: dict[int, _Track] = {}  # tracks that can still grow
+        self._closed: dict[int, _Track] = {}  # confirmed tracks that ended, points still held
+        self._lost: list[_Track] = []  # numbered tracks that ended, for re-identification
+        # per track, the scan, position and height of the point released last, and the scan,
+        # position, x and z of the verified point released last
+        self._last_released: dict[int, tuple[int, float, float]] = {}
+        self._last_verified: dict[int, tuple[int, float, float, float]] = {}
+        self._next_track = 0
+        self._next_wire = 0
+        self._last_m = -np.inf
+        self._last_scan = -1
+        self._columns: tuple[str, ...] | None = None
+
+    @property
+    def held_points(self) -> int:
+        """Points held back (not yet released or dropped)."""
+        return int(self._store.scan.shape[0])
+
+    @property
+    def wires(self) -> int:
+        """Wire numbers given so far."""
+        return self._next_wire
+
+    # -- the stream --------------------------------------------------------------------------
+
+    def push(
+        self,
+        scan: IntArray,
+        position_m: FloatArray,
+        x_mm: FloatArray,
+        z_mm: FloatArray,
+        columns: Mapping[str, NDArray[np.generic]] | None = None,
+        *,
+        verified: NDArray[np.bool_] | None = None,
+        last_scan: int | None = None,
+        last_position_m: float | None = None,
+    ) -> TrackedPoints:
+        """Add a block's points; return the points now decided.
+
+        Parameters
+        ----------
+        scan : ndarray of int, shape (m,)
+            Run scan index of each point, after every scan pushed before.
+        position_m : ndarray, shape (m,)
+            Position along the track of each point's scan [m], non-decreasing with the scan.
+        x_mm, z_mm : ndarray, shape (m,)
+            Roof-frame position [mm].
+        columns : mapping of str to ndarray (m, ...), optional
+            Values carried through to the output (the same keys on every push).
+        verified : ndarray of bool, shape (m,), optional
+            Which points the matching verified (default: all). A chain of unverified points
+            (two cameras only) never starts a track: it only continues one whose end
+            predicts it within the tight link gate, and is dropped otherwise.
+        last_scan, last_position_m : optional
+            The block's last scan and its position, when it may have no point there: the
+            tracker then knows how far the run has gone.
+
+        Returns
+        -------
+        TrackedPoints
+            The points of the contact wires that are now decided.
+        """
+        scan = np.asarray(scan, dtype=np.int64)
+        position = np.asarray(position_m, dtype=np.float64)
+        x = np.asarray(x_mm, dtype=np.float64)
+        z = np.asarray(z_mm, dtype=np.float64)
+        cols = {k: np.asarray(v) for k, v in (columns or {}).items()}
+        if self._columns is None:
+            self._columns = tuple(cols)
+        elif tuple(cols) != self._columns:
+            raise ValueError(f"columns {tuple(cols)} differ from the first push's {self._columns}")
+        checked = (
+            np.ones(scan.shape, dtype=bool) if verified is None else np.asarray(verified, bool)
+        )
+        order = np.lexsort((x, scan))
+        scan, position, x, z = scan[order], position[order], x[order], z[order]
+        checked = checked[order]
+        cols = {k: v[order] for k, v in cols.items()}
+        if scan.shape[0] and scan[0] <= self._last_scan:
+            raise ValueError(f"scan {scan[0]} pushed after scan {self._last_scan}")
+        if scan.shape[0]:
+            self._add(scan, position, x, z, checked, cols)
+        if last_scan is not None:
+            self._last_scan = max(self._last_scan, int(last_scan))
+        if last_position_m is not None:
+            self._last_m = max(self._last_m, float(last_position_m))
+        self._close_stale()
+        return self._release(final=False)
+
+    def finish(self) -> TrackedPoints:
+        """Decide every track still open and return the rest of the points."""
+        for track in list(self._open.values()):
+            self._end(track)
+        return self._release(final=True)
+
+    # -- steps -------------------------------------------------------------------------------
+
+    def _add(
+        self,
+        scan: IntArray,
+        position: FloatArray,
+        x: FloatArray,
+        z: FloatArray,
+        verified: NDArray[np.bool_],
+        cols: dict[str, NDArray[np.generic]],
+    ) -> None:
+        config = self.config
+        root = link_fragments(
+            scan, position, x, z, config.link_mm, config.x_mm_per_m, config.z_mm_per_m
+        )
+        fragments, fragment_of, sizes = np.unique(root, return_inverse=True, return_counts=True)
+        members = np.argsort(fragment_of, kind="stable")
+        bounds = np.concatenate([[0], np.cumsum(sizes)])
+        track_of_fragment = np.full(fragments.shape[0], -1, dtype=np.int64)
+        for track in self._open.values():
+            track.last_fragment = -1
+        # by first scan, longest first: a wire's fragment claims its track before a clamp's
+        for f in np.lexsort((-sizes, scan[fragments])):  # one step per fragment, not per point
+            rows = members[bounds[f] : bounds[f + 1]]
+            track = self._join(
+                rows, scan, position, x, z, f, track_of_fragment, bool(verified[rows].any())
+            )
+            track_of_fragment[f] = -1 if track is None else track.id
+        track_id = track_of_fragment[fragment_of]
+        kept = track_id >= 0  # unverified chains that continued no track are dropped
+        self._store.append(
+            _Store(
+                scan[kept],
+                position[kept],
+                x[kept],
+                z[kept],
+                track_id[kept],
+                verified[kept],
+                {k: v[kept] for k, v in cols.items()},
+            )
+        )
+        self._last_scan = max(self._last_scan, int(scan[-1]))
+        self._last_m = max(self._last_m, float(position[-1]))
+        self._merge_duplicates()
+        for track in self._open.values():
+            if not track.confirmed and self._long_enough(track):
+                track.confirmed = True
+
+    def _merge_duplicates(self) -> None:
+        """Merge open tracks that end together at one place: one wire followed twice.
+
+        When a wrong point breaks a wire's chain, the wire's next points may start a second
+        track while the first is still open, and the two then take its points in turns. Two
+        tracks whose ends are within ``link_mm`` and ``max_gap_m`` of each other are one: the
+        younger's points join the older (which keeps its number, or takes the younger's).
+        Two wires that touch (a crossing) are merged too, and part after it; no camera
+        separates them there anyway.
+        """
+        config = self.config
+        tracks = sorted(self._open.values(), key=lambda t: t.id)
+        if len(tracks) < 2:
+            return
+        ends = np.array([[t.end_m, t.end_x, t.end_z] for t in tracks])
+        close = (
+            (np.abs(ends[:, None, 0] - ends[None, :, 0]) <= config.max_gap_m)
+            & (np.abs(ends[:, None, 1] - ends[None, :, 1]) <= config.link_mm)
+            & (np.abs(ends[:, None, 2] - ends[None, :, 2]) <= config.link_mm)
+        )
+        older, younger = np.nonzero(np.triu(close, k=1))
+        merged: set[int] = set()
+        for i, j in zip(older.tolist(), younger.tolist(), strict=True):
+            keep, gone = tracks[i], tracks[j]
+            if keep.id in merged or gone.id in merged:
+                continue
+            if keep.wire >= 0 and gone.wire >= 0:
+                continue  # two numbered wires: leave them (their numbers are out already)
+            self._store.track[self._store.track == gone.id] = keep.id
+            points = keep.points + gone.points
+            if gone.end_scan > keep.end_scan:
+                keep.restore(gone.snapshot())
+                keep.before = None
+            keep.points = points
+            keep.start_m = min(keep.start_m, gone.start_m)
+            keep.start_scan = min(keep.start_scan, gone.start_scan)
+            keep.confirmed = keep.confirmed or gone.confirmed
+            if keep.wire < 0:
+                keep.wire = gone.wire
+            del self._open[gone.id]
+            merged.add(gone.id)
+
+    def _long_enough(self, track: _Track) -> bool:
+        config = self.config
+        covered = track.points / (track.end_scan - track.start_scan + 1)
+        return (
+            track.length_m >= config.min_track_m
+            and track.points >= MIN_TRACK_POINTS
+            and covered >= config.min_coverage
+        )
+
+    def _join(
+        self,
+        rows: IntArray,
+        scan: IntArray,
+        position: FloatArray,
+        x: FloatArray,
+        z: FloatArray,
+        fragment: int,
+        track_of_fragment: IntArray,
+        verified: bool = True,
+    ) -> _Track | None:
+        """Attach one fragment to the open track that predicts it best, or start a track.
+
+        A fragment of unverified points only continues a track within the tight link gate
+        of its end, and starts none (None).
+
+        Two cases undo the track's last fragment ``F`` and give the track to this one, ``G``,
+        with ``F`` set apart as a track of its own (short, it is dropped):
+
+        - *take-over*: ``F`` overlaps ``G`` in scans and is shorter (a clamp's few points had
+          continued the wire where it was missed, and the wire's own points come back);
+        - *excursion*: ``F`` is short (``EXCURSION_M``), jumped out of the tight link gate
+          of the track's end before it, and ``G`` comes back within that gate of it (a
+          fitting's face took the wire's place for a few scans).
+        """
+        config = self.config
+        p0, x0, z0 = float(position[rows[0]]), float(x[rows[0]]), float(z[rows[0]])
+        s0 = int(scan[rows[0]])
+
+        def offset(
+            state: tuple[float, int, float, float, float, float, int],
+        ) -> tuple[float, float, float]:
+            end_m, end_scan, end_x, end_z, sx, sz, _ = state
+            gap = p0 - end_m
+            if end_scan >= s0 or gap > config.max_gap_m:
+                return np.inf, np.inf, np.inf
+            gap = max(gap, 0.0)
+            return abs(end_x + sx * gap - x0), abs(end_z + sz * gap - z0), gap
+
+        def fit(state: tuple[float, int, float, float, float, float, int]) -> float:
+            """Distance to the prediction over the loose (gap) gate; inf beyond it."""
+            dx, dz, gap = offset(state)
+            distance = max(dx, dz) / (config.gate_mm + config.gap_gate_mm_per_m * gap)
+            return distance if distance <= 1.0 else np.inf
+
+        def linked(state: tuple[float, int, float, float, float, float, int]) -> bool:
+            """Whether the fragment continues the state within the tight link gate."""
+            dx, dz, gap = offset(state)
+            return bool(
+                dx <= config.link_mm + config.x_mm_per_m * gap
+                and dz <= config.link_mm + config.z_mm_per_m * gap
+            )
+
+        if not verified:
+            best: _Track | None = None
+            best_distance = np.inf
+            for track in self._open.values():
+                if (
+                    track.end_m < p0 - config.max_gap_m
+                    or max(abs(track.end_x - x0), abs(track.end_z - z0)) > _FAR_MM
+                ):
+                    continue
+                now = track.snapshot()
+                if linked(now) and fit(now) < best_distance:
+                    best, best_distance = track, fit(now)
+            if best is None:
+                return None
+            return self._extend(best, rows, scan, position, x, z, fragment, jumped=False)
+
+        best = None
+        best_distance = np.inf
+        detach = False
+        oldest = p0 - config.max_gap_m
+        for track in self._open.values():
+            # quick rejections: ended too long ago, or far away (no gate reaches that far)
+            if track.end_m < oldest or max(abs(track.end_x - x0), abs(track.end_z - z0)) > _FAR_MM:
+                continue
+            now = track.snapshot()
+            before = track.before
+            undo = before is not None and (
+                (
+                    track.last_start_scan <= s0 <= track.end_scan
+                    and track.last_points < rows.shape[0]
+                )
+                or (
+                    track.last_jumped
+                    and track.end_m - track.last_start_m <= EXCURSION_M
+                    and linked(before)
+                    and not linked(now)
+                )
+            )
+            distance = fit(before) if undo and before is not None else fit(now)
+            if distance < best_distance:
+                best, best_distance, detach = track, distance, undo
+        if best is not None and detach:
+            self._detach(best, track_of_fragment)
+        jumped = best is not None and not linked(best.snapshot())
+        if best is None:
+            best = _Track(self._next_track, p0, s0, p0, s0, x0, z0)
+            self._next_track += 1
+            self._open[best.id] = best
+        return self._extend(best, rows, scan, position, x, z, fragment, jumped=jumped)
+
+    def _extend(
+        self,
+        best: _Track,
+        rows: IntArray,
+        scan: IntArray,
+        position: FloatArray,
+        x: FloatArray,
+        z: FloatArray,
+        fragment: int,
+        *,
+        jumped: bool,
+    ) -> _Track:
+        """Append a fragment to a track: its end, its slope, what undoing it needs."""
+        p0, s0 = float(position[rows[0]]), int(scan[rows[0]])
+        best.before = best.snapshot() if best.points else None
+        best.last_jumped = jumped
+        best.last_start_m = p0
+        best.last_start_scan = s0
+        best.last_points = int(rows.shape[0])
+        best.last_fragment = fragment
+        last = rows[-1]
+        best.points += rows.shape[0]
+        best.end_m = float(position[last])
+        best.end_scan = int(scan[last])
+        best.end_x = float(x[last])
+        best.end_z = float(z[last])
+        # the slope over the fragment's last half metre, for bridging the next gap
+        tail = rows[position[rows] >= best.end_m - 0.5]
+        if tail.shape[0] >= MIN_TRACK_POINTS and np.ptp(position[tail]) > 0.1:
+            p = position[tail] - position[tail].mean()
+            spread = float(p @ p)
+            best.slope_x = float(p @ x[tail]) / spread
+            best.slope_z = float(p @ z[tail]) / spread
+        return best
+
+    def _detach(self, track: _Track, track_of_fragment: IntArray) -> None:
+        """Set a track's last fragment apart as a new track; restore the track's end."""
+        assert track.before is not None
+        apart = _Track(
+            self._next_track,
+            np.nan,
+            track.last_start_scan,
+            track.end_m,
+            track.end_scan,
+            track.end_x,
+            track.end_z,
+            points=track.last_points,
+        )
+        self._next_track += 1
+        if track.last_fragment >= 0:  # in the block being added
+            track_of_fragment[track.last_fragment] = apart.id
+            apart.start_m = track.before[0]  # approximately: it started after the track's end
+        else:  # held in the store from an earlier block
+            rows = (self._store.track == track.id) & (self._store.scan >= track.last_start_scan)
+            self._store.track[rows] = apart.id
+            apart.start_m = float(self._store.position_m[rows].min())
+        self._open[apart.id] = apart
+        track.restore(track.before)
+        track.before = None
+
+    def _end(self, track: _Track) -> None:
+        """A track that can no longer grow: unconfirmed ones are dropped with their points."""
+        del self._open[track.id]
+        if track.confirmed:
+            self._closed[track.id] = track
+            if track.wire >= 0:
+                self._lost.append(track)
+
+    def _close_stale(self) -> None:
+        config = self.config
+        for track in list(self._open.values()):
+            if self._last_m - track.end_m > config.max_gap_m:
+                self._end(track)
+        horizon = self._last_m - config.reidentify_m - config.max_gap_m
+        self._lost = [t for t in self._lost if t.end_m >= horizon]
+
+    def _number(self, track: _Track, scan: int, position: float, x: float, z: float) -> int:
+        """Wire number of a track's first contact point: an ended wire's, or a new one.
+
+        A numbered track that ended before this point (lost, or open but unable to grow any
+        more), within ``reidentify_m`` and near where it ended, hands its number over; an
+        open one is then ended, so that one number never runs twice at once.
+        """
+        config = self.config
+        taken = {t.wire for t in self._open.values() if t.wire >= 0 and t.end_scan >= scan}
+        # open tracks that can no longer grow: no fragment after this scan starts within the
+        # gap a track bridges
+        ended = [
+            t
+            for t in self._open.values()
+            if t.wire >= 0 and t.end_scan < scan and position - t.end_m > config.max_gap_m
+        ]
+        best: _Track | None = None
+        best_distance = np.inf
+        for old in [*self._lost, *ended]:
+            gap = position - old.end_m
+            if old is track or old.wire in taken or gap > config.reidentify_m:
+                continue
+            grown = config.gap_gate_mm_per_m * min(max(gap, 0.0), REIDENTIFY_GROWTH_M)
+            gate = config.reidentify_mm + grown
+            distance = max(abs(old.end_x - x), abs(old.end_z - z))
+            if distance <= gate and distance / gate < best_distance:
+                best, best_distance = old, distance / gate
+        if best is None:
+            number = self._next_wire
+            self._next_wire += 1
+            return number
+        if best in self._lost:
+            self._lost.remove(best)
+        else:
+            self._end(best)
+            self._lost.remove(best)
+        return best.wire
+
+    def _release(self, *, final: bool) -> TrackedPoints:
+        """Return the points no undecided track can still change (steps 4-6)."""
+        store = self._store
+        horizon_scan = np.iinfo(np.int64).max if final else self._last_scan + 1
+        undecided = [t.id for t in self._open.values() if not t.confirmed]
+        starts = store.scan[np.isin(store.track, undecided)]
+        if starts.shape[0] and not final:
+            horizon_scan = min(horizon_scan, int(starts.min()))
+        if not final:
+            # a gap that may still be bridged must be seen to its end: what follows a scan
+            # by up to max_gap_m is known before it is released (so the result does not
+            # depend on how the run is cut into blocks)
+            recent = store.position_m > self._last_m - self.config.max_gap_m
+            if np.any(recent):
+                horizon_scan = min(horizon_scan, int(store.scan[recent].min()))
+        released = store.split(store.scan < horizon_scan)
+        tracks = {**self._closed, **{t.id: t for t in self._open.values() if t.confirmed}}
+        wire_track = np.isin(released.track, list(tracks))
+        lowest = self._lowest_wire(released, tracks)
+        with np.errstate(invalid="ignore"):
+            contact = wire_track & ~(released.z_mm > lowest + self.config.messenger_gap_mm)
+        # numbers, for tracks whose first contact point this is (in order of appearance)
+        wire = np.full(released.scan.shape[0], -1, dtype=np.int64)
+        rows = np.flatnonzero(contact)
+        ids, first = np.unique(released.track[rows], return_index=True)
+        for track_id, row in sorted(
+            zip(ids.tolist(), rows[first].tolist(), strict=True), key=lambda item: item[1]
+        ):
+            track = tracks[track_id]
+            if track.wire < 0:
+                track.wire = self._number(
+                    track,
+                    int(released.scan[row]),
+                    float(released.position_m[row]),
+                    float(released.x_mm[row]),
+                    float(released.z_mm[row]),
+                )
+                if track.id not in self._open:  # it ended before its first point was out
+                    self._lost.append(track)
+            wire[released.track == track_id] = track.wire
+        keep = contact & (wire >= 0)
+        keep &= self._on_track(released)
+        self._remember(released, tracks)
+        return TrackedPoints(
+            scan=released.scan[keep],
+            wire=wire[keep],
+            position_m=released.position_m[keep],
+            x_mm=released.x_mm[keep],
+            z_mm=released.z_mm[keep],
+            columns={k: v[keep] for k, v in released.columns.items()},
+        )
+
+    def _lowest_wire(self, released: _Store, tracks: Mapping[int, _Track]) -> FloatArray:
+        """Lowest height of any confirmed track at each released point's scan [mm].
+
+        Each track's height is interpolated between its points (so a scan where it was
+        missed still counts) and held beyond its ends for ``max_gap_m`` (a wire missed in the
+        first or last scans it is seen in).
+        """
+        lowest = np.full(released.scan.shape[0], np.inf)
+        store = self._store
+        reach = self.config.max_gap_m
+        for track_id in tracks:  # one step per wire in view
+            mine = released.track == track_id
+            ahead = store.track == track_id
+            scans = [released.scan[mine], store.scan[ahead]]
+            positions = [released.position_m[mine], store.position_m[ahead]]
+            heights = [released.z_mm[mine], store.z_mm[ahead]]
+            if track_id in self._last_released:
+                last_scan, last_m, last_z = self._last_released[track_id]
+                scans.insert(0, np.array([last_scan]))
+                positions.insert(0, np.array([last_m]))
+                heights.insert(0, np.array([last_z]))
+            s = np.concatenate(scans)
+            if s.shape[0] == 0:
+                continue
+            p = np.concatenate(positions)
+            h = np.concatenate(heights)
+            z = np.interp(released.scan, s, h)
+            near = (released.position_m >= p[0] - reach) & (released.position_m <= p[-1] + reach)
+            lowest = np.minimum(lowest, np.where(near, z, np.inf))
+        return np.where(np.isfinite(lowest), lowest, np.nan)
+
+    def _on_track(self, released: _Store) -> NDArray[np.bool_]:
+        """Whether each released point is verified, or lies where its track's verified points
+        put it (interpolated between them, extrapolated beyond) within the tight link gate and
+        ``UNVERIFIED_REACH_M`` of one of them.
+
+        A chain of unverified points joins a track through its first point only; each of its
+        points is checked here, when the verified points on both sides of it are known.
+        """
+        config = self.config
+        ok = released.verified.copy()
+        store = self._store
+        for track_id in np.unique(released.track[~ok]).tolist():  # one step per track
+            mine = released.track == track_id
+            ahead = (store.track == track_id) & store.verified
+            sure = mine & released.verified
+            parts = [
+                (
+                    released.scan[sure],
+                    released.position_m[sure],
+                    released.x_mm[sure],
+                    released.z_mm[sure],
+                ),
+                (store.scan[ahead], store.position_m[ahead], store.x_mm[ahead], store.z_mm[ahead]),
+            ]
+            if track_id in self._last_verified:
+                parts.insert(0, tuple(np.array([v]) for v in self._last_verified[track_id]))
+            s, p, x, z = (np.concatenate([part[i] for part in parts]) for i in range(4))
+            rows = np.flatnonzero(mine & ~released.verified)
+            if s.shape[0] == 0:
+                continue
+            order = np.argsort(s, kind="stable")
+            s, p, x, z = s[order], p[order], x[order], z[order]
+            q = released.scan[rows]
+            after = np.searchsorted(s, q)  # first verified point after (scans differ)
+            before_m = p[np.maximum(after - 1, 0)]
+            after_m = p[np.minimum(after, s.shape[0] - 1)]
+            here = released.position_m[rows]
+            between = (after > 0) & (after < s.shape[0])
+            gap = np.where(
+                between,
+                np.minimum(here - before_m, after_m - here),
+                np.where(after > 0, here - before_m, after_m - here),
+            )
+            # between verified points the wire is interpolated (a kink bends it by a little
+            # over the gap); beyond them it is extrapolated (its slope at most)
+            growth = np.where(between, 0.1, 1.0) * np.abs(gap)
+            ok[rows] = (
+                (np.abs(gap) <= UNVERIFIED_REACH_M)
+                & (
+                    np.abs(released.x_mm[rows] - np.interp(q, s, x))
+                    <= config.link_mm + config.x_mm_per_m * growth
+                )
+                & (
+                    np.abs(released.z_mm[rows] - np.interp(q, s, z))
+                    <= config.link_mm + config.z_mm_per_m * growth
+                )
+            )
+        return ok
+
+    def _remember(self, released: _Store, tracks: Mapping[int, _Track]) -> None:
+        """Keep each track's last released point; forget tracks that hold nothing more."""
+        if released.scan.shape[0]:
+            ids, from_end = np.unique(released.track[::-1], return_index=True)
+            last = released.scan.shape[0] - 1 - from_end  # last row of each track
+            for track_id, row in zip(ids.tolist(), last.tolist(), strict=True):
+                if track_id in tracks:
+                    self._last_released[track_id] = (
+                        int(released.scan[row]),
+                        float(released.position_m[row]),
+                        float(released.z_mm[row]),
+                    )
+            sure = released.verified
+            ids, from_end = np.unique(released.track[sure][::-1], return_index=True)
+            last = np.flatnonzero(sure)[sure.sum() - 1 - from_end]
+            for track_id, row in zip(ids.tolist(), last.tolist(), strict=True):
+                if track_id in tracks:
+                    self._last_verified[track_id] = (
+                        int(released.scan[row]),
+                        float(released.position_m[row]),
+                        float(released.x_mm[row]),
+                        float(released.z_mm[row]),
+                    )
+        held = set(np.unique(self._store.track).tolist())
+        for track_id in [t for t in self._closed if t not in held]:
+            del self._closed[track_id]
+        alive = set(self._open) | set(self._closed)
+        for book in (self._last_released, self._last_verified):
+            for track_id in [t for t in book if t not in alive]:
+                del book[track_id]
+
+
+def _lookup(mapping: Mapping[int, int], keys: IntArray) -> IntArray:
+    """``mapping[key]`` for each key, -1 where absent (vectorised)."""
+    if not mapping or keys.shape[0] == 0:
+        return np.full(keys.shape, -1, dtype=np.int64)
+    known = np.array(sorted(mapping), dtype=np.int64)
+    values = np.array([mapping[int(k)] for k in known], dtype=np.int64)
+    position = np.clip(np.searchsorted(known, keys), 0, known.shape[0] - 1)
+    return np.where(known[position] == keys, values[position], -1)
+
+
+def _lowest_by_scan(scan: IntArray, z: FloatArray, query_scan: IntArray) -> FloatArray:
+    """Lowest ``z`` among points of each ``query_scan`` (NaN where there is none)."""
+    if scan.shape[0] == 0:
+        return np.full(query_scan.shape, np.nan)
+    unique, inverse = np.unique(scan, return_inverse=True)
+    lowest = np.full(unique.shape[0], np.inf)
+    np.minimum.at(lowest, inverse, z)
+    position = np.clip(np.searchsorted(unique, query_scan), 0, unique.shape[0] - 1)
+    found = unique[position] == query_scan
+    return np.where(found, lowest[position], np.nan)

@@ -1,0 +1,388 @@
+"""Profile features (the paper's section 3.2, steps 1-3) against the simulator's ground truth.
+
+The simulator renders what each camera of the demo rig sees (physical shading of the worn face
+and the round sides, optical blur, shot and read noise, quantisation) and says where every
+wire's silhouette and face fall in each camera's pixels. The wear of the contact wires is set
+here (the scene's wear profile replaced by a constant width) so that each test knows what it
+measures. Tolerances are physical: pixels of the line, at the demo rig's 0.27-0.44 mm/px.
+
+Figures these tests hold (8-bit demo rig, 40 scans x 4 cameras x 2 contact wires per case):
+
+- face edges, every lighting, faces 3-12 mm (5-27 px) clear of the silhouette by >= 4 px:
+  RMS <= 0.06 px; face width bias <= 0.05 px;
+- white daylight, a face edge 1-4 px from the silhouette (the dark strip of the wire's side
+  between them is blurred away): fitted, RMS ~0.2 px; closer than 1 px, not resolved (errors
+  up to ~1 px, see ``test_face_at_the_silhouette_in_white_daylight``);
+- faces narrower than the blur (< ~2.5 px, < ~1 mm here) read ~2.6-2.9 px wide; a new wire
+  has no face;
+- false candidates on pure sky noise: none in 3 x 1000 lines of 4096 px here (and none in
+  6000 more in development: below 3e-4 per line at 95 % confidence); a sun-blinded
+  (saturated) camera: none, and at most 4 per line while the glare ramps up.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import cache
+
+import numpy as np
+import pytest
+
+from catenary_linescan.processor.features import FeatureConfig, LineFeatures, extract_features
+from catenary_linescan.simulator import Simulation, parse_settings
+
+SCANS = 40
+LIGHTING_POLARITY = {"night": 1, "day-filter": 1, "day-white": -1}
+
+
+# -- the simulated lines ----------------------------------------------------------------------
+
+
+@cache
+def simulate(lighting: str, wear_mm: float | None, bit_depth: int = 8, seed: int = 1):
+    """One chunk of ``SCANS`` scans: ``(lines by camera, truth, contact wire columns)``.
+
+    The contact wires get a constant face width ``wear_mm`` (None: the scene's own wear);
+    ``bit_depth`` above 8 scales the sensor's gain and black level with it.
+    """
+    sim = Simulation(
+        parse_settings({"length_m": 8.0, "lighting": lighting, "seed": seed, "chunk_scans": SCANS})
+    )
+    if wear_mm is not None:
+        wires = tuple(
+            dataclasses.replace(
+                w,
+                wear_base_mm=float(wear_mm),
+                wear_waves=np.zeros((0, 3)),
+                wear_spots=np.zeros((0, 3)),
+                max_wear_mm=max(12.0, float(wear_mm)),
+            )
+            if w.contact
+            else w
+            for w in sim.scene.wires
+        )
+        sim.scene = dataclasses.replace(sim.scene, wires=wires)
+    if bit_depth != 8:
+        scale = 2.0 ** (bit_depth - 8)
+        cameras = tuple(
+            dataclasses.replace(
+                c,
+                bit_depth=bit_depth,
+                gain_dn_per_e=c.gain_dn_per_e * scale,
+                black_level_dn=c.black_level_dn * scale,
+            )
+            for c in sim.rig.cameras
+        )
+        sim.rig = dataclasses.replace(sim.rig, cameras=cameras)
+    chunk = sim.chunk(0)
+    contact = [m for m, w in enumerate(sim.scene.wires) if w.contact]
+    return chunk.lines, chunk.truth, contact
+
+
+@cache
+def features(lighting: str, wear_mm: float | None, bit_depth: int = 8) -> dict:
+    lines, _, _ = simulate(lighting, wear_mm, bit_depth)
+    return {cam: extract_features(block, bit_depth) for cam, block in lines.items()}
+
+
+def matches(lighting: str, wear_mm: float | None, bit_depth: int = 8) -> list[dict]:
+    """Every contact wire in view, alone in its camera, with the candidate nearest to it.
+
+    A wire is alone when no other wire's silhouette comes within 5 px of its own (where a
+    messenger crosses it in the image the matcher works from the other cameras).
+    """
+    lines, truth, contact = simulate(lighting, wear_mm, bit_depth)
+    found = features(lighting, wear_mm, bit_depth)
+    out = []
+    for cam, block in lines.items():
+        tr = truth.cameras[cam]
+        f = found[cam]
+        width = block.shape[1]
+        for m in contact:
+            for r in range(block.shape[0]):
+                left, right = tr.left_px[r, m], tr.right_px[r, m]
+                if not (np.isfinite(left) and left > 30 and right < width - 30):
+                    continue
+                others = [k for k in range(tr.left_px.shape[1]) if k != m]
+                if any(
+                    tr.left_px[r, k] < right + 5 and tr.right_px[r, k] > left - 5 for k in others
+                ):
+                    continue
+                same = np.flatnonzero(f.scan == r)
+                near = same[np.abs(f.centre_px[same] - tr.u_px[r, m]) < 0.5 * (right - left)]
+                j = near[np.argmin(np.abs(f.centre_px[near] - tr.u_px[r, m]))] if near.size else -1
+                out.append({"cam": cam, "scan": r, "wire": m, "j": j, "truth": tr, "f": f})
+    return out
+
+
+def edge_errors(found: list[dict], clear_px: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Face edge errors [px] of found faces whose edges are ``clear_px`` from the silhouette,
+    and face width errors with the true widths: ``(edge errors, (true, error) pairs)``."""
+    edges, widths = [], []
+    for hit in found:
+        j, f, tr, r, m = hit["j"], hit["f"], hit["truth"], hit["scan"], hit["wire"]
+        if j < 0 or not np.isfinite(f.face_width_px[j]):
+            continue
+        fl, fr = tr.face_left_px[r, m], tr.face_right_px[r, m]
+        if fl - tr.left_px[r, m] < clear_px or tr.right_px[r, m] - fr < clear_px:
+            continue
+        edges += [f.face_left_px[j] - fl, f.face_right_px[j] - fr]
+        widths.append((fr - fl, f.face_width_px[j] - (fr - fl)))
+    return np.array(edges), np.array(widths).reshape(-1, 2)
+
+
+# -- every contact wire, every lighting -----------------------------------------------------
+
+
+@pytest.mark.parametrize("lighting", sorted(LIGHTING_POLARITY))
+def test_every_contact_wire_is_found_with_its_face(lighting: str) -> None:
+    """Every contact wire alone in its camera's line; the droppers and clamps hanging from
+    it (which the ground truth does not place in the image) may merge with it in a few
+    scans (a dark silhouette by day): then the wire is left to the other cameras."""
+    found = matches(lighting, 5.0)
+    assert len(found) > 180
+    f_hits = [h for h in found if h["j"] >= 0]
+    missed = len(found) - len(f_hits)
+    assert missed <= (0 if lighting == "night" else 0.01 * len(found)), f"{missed} missed"
+    polarity = {int(h["f"].polarity[h["j"]]) for h in f_hits}
+    assert polarity == {LIGHTING_POLARITY[lighting]}
+    faces = np.mean([h["f"].has_face[h["j"]] for h in f_hits])
+    assert faces == 1.0
+    # the point to triangulate is the face's centre, the contact point the truth images
+    centre = np.array(
+        [h["f"].centre_px[h["j"]] - h["truth"].u_px[h["scan"], h["wire"]] for h in f_hits]
+    )
+    assert np.sqrt(np.mean(centre**2)) < 0.1
+
+
+@pytest.mark.parametrize("lighting", sorted(LIGHTING_POLARITY))
+def test_face_edges_within_a_tenth_of_a_pixel(lighting: str) -> None:
+    """5 mm faces (7-13 px) whose edges are clear of the silhouette (by 4 px)."""
+    edges, widths = edge_errors(matches(lighting, 5.0), clear_px=4.0)
+    assert edges.size > 360
+    assert np.sqrt(np.mean(edges**2)) < 0.1
+    assert np.max(np.abs(edges)) < 0.4
+    assert abs(widths[:, 1].mean()) < 0.05
+
+
+@pytest.mark.parametrize("lighting", ["night", "day-filter"])
+def test_12_mm_faces_by_night_and_with_the_filter(lighting: str) -> None:
+    """12 mm faces (17-27 px) reach the silhouette on one side: bright faces keep sharp
+    edges there."""
+    found = matches(lighting, 12.0)
+    assert np.mean([h["f"].has_face[h["j"]] for h in found if h["j"] >= 0]) == 1.0
+    edges, widths = edge_errors(found)
+    assert edges.size > 360
+    assert np.sqrt(np.mean(edges**2)) < 0.1
+    assert abs(widths[:, 1].mean()) < 0.06
+
+
+def test_12_mm_faces_in_white_daylight() -> None:
+    """In white daylight a face edge next to the silhouette is separated from it by a thin
+    strip of the wire's dark side: the opposite steps are fitted together from 1 px apart
+    (RMS about 0.25 px); closer than that they are not resolved (up to about 1.5 px)."""
+    found = matches("day-white", 12.0)
+    assert np.mean([h["f"].has_face[h["j"]] for h in found if h["j"] >= 0]) > 0.95
+    near, _ = edge_errors(found, clear_px=1.0)
+    every, _ = edge_errors(found)
+    assert near.size > 120
+    assert np.sqrt(np.mean(near**2)) < 0.3
+    assert np.sqrt(np.mean(every**2)) < 0.45
+
+
+# -- narrow faces and new wires -------------------------------------------------------------
+
+
+@pytest.mark.parametrize("lighting", sorted(LIGHTING_POLARITY))
+def test_new_wire_has_no_face(lighting: str) -> None:
+    found = [h for h in matches(lighting, 0.0) if h["j"] >= 0]
+    assert len(found) > 120
+    faces = np.mean([h["f"].has_face[h["j"]] for h in found])
+    assert faces < 0.02
+    # behind the filter an unworn wire is a lit bottom between dark sides: polarity 0 then
+    polarity = {int(h["f"].polarity[h["j"]]) for h in found}
+    assert polarity <= {LIGHTING_POLARITY[lighting] if lighting != "day-filter" else -1, 0}
+    # without a face the point to triangulate is the middle of the wire's boundaries
+    f0 = found[0]["f"]
+    j = found[0]["j"]
+    assert f0.centre_px[j] == pytest.approx(0.5 * (f0.left_px[j] + f0.right_px[j]))
+
+
+@pytest.mark.parametrize("lighting", sorted(LIGHTING_POLARITY))
+def test_narrow_faces_are_found_and_read_as_wide_as_the_blur(lighting: str) -> None:
+    """A 1 mm face (1.4-2.2 px) is narrower than the optical blur: found, and read about
+    2.6-2.9 px wide (+1.1 px): at 1 mm that is 0.02 mm of residual thickness."""
+    found = [h for h in matches(lighting, 1.0) if h["j"] >= 0]
+    faces = np.mean([h["f"].has_face[h["j"]] for h in found])
+    assert faces > 0.98
+    _, widths = edge_errors(found)
+    read = widths[:, 0] + widths[:, 1]
+    assert np.all((read > 2.0) & (read < 3.5))
+
+
+# -- bit depth, saturation, sky -------------------------------------------------------------
+
+
+@pytest.mark.parametrize("lighting", sorted(LIGHTING_POLARITY))
+def test_8_and_16_bit_lines_agree(lighting: str) -> None:
+    """The same electrons quantised to 8 and 16 bits give the same faces."""
+    a = matches(lighting, 5.0, 8)
+    b = matches(lighting, 5.0, 16)
+    keys = {(h["cam"], h["scan"], h["wire"]): h for h in b if h["j"] >= 0}
+    diffs, contrast = [], []
+    for h in a:
+        other = keys.get((h["cam"], h["scan"], h["wire"]))
+        if h["j"] < 0 or other is None:
+            continue
+        fa, fb, ja, jb = h["f"], other["f"], h["j"], other["j"]
+        diffs += [
+            fa.face_left_px[ja] - fb.face_left_px[jb],
+            fa.face_right_px[ja] - fb.face_right_px[jb],
+        ]
+        contrast.append(fa.contrast[ja] - fb.contrast[jb])
+    diffs = np.array(diffs)
+    assert diffs.size > 360
+    assert np.mean(np.abs(diffs) < 0.05) > 0.97
+    assert np.median(np.abs(diffs)) < 0.02
+    assert np.max(np.abs(contrast)) < 0.01
+
+
+def test_saturated_lines_give_no_candidates() -> None:
+    assert len(extract_features(np.full((50, 4096), 255, np.uint8), 8)) == 0
+    assert len(extract_features(np.full((50, 2048), 4095, np.uint16), 12)) == 0
+    # a camera blinded by the sun: glare over the whole chunk, the other cameras unaffected
+    sim = Simulation(
+        parse_settings(
+            {
+                "length_m": 12.0,
+                "lighting": "day-white",
+                "seed": 3,
+                "chunk_scans": 96,
+                "sun_blind": "cam2",
+                "sun_blind_span": (0.0, 1.0),
+            }
+        )
+    )
+    for index in (1, 2):  # the glare ramps up over the first 3 m (180 scans), then blinds
+        chunk = sim.chunk(index)
+        blinded = extract_features(chunk.lines["cam2"], 8)
+        per_line = np.bincount(blinded.scan, minlength=chunk.scans)
+        assert per_line.max() <= 4  # never a flood
+        full = chunk.truth.sun_glare >= 1.0
+        assert per_line[full].sum() == 0
+        assert len(extract_features(chunk.lines["cam3"], 8)) > 2 * chunk.scans
+    assert full.all()
+
+
+@pytest.mark.parametrize(
+    ("level", "noise", "dtype", "bit_depth"),
+    [(2.0, 0.3, np.uint8, 8), (120.0, 1.5, np.uint8, 8), (30000.0, 300.0, np.uint16, 16)],
+)
+def test_pure_sky_noise_gives_no_candidates(level, noise, dtype, bit_depth) -> None:
+    """1000 lines of 4096 px of noise (plus a smooth sky gradient): no false candidate."""
+    rng = np.random.default_rng(7)
+    sky = level * (1.0 + 0.2 * np.cos(np.linspace(0.0, np.pi, 4096)))[None, :]
+    lines = np.clip(np.rint(sky + rng.normal(0.0, noise, (1000, 4096))), 0, 2**bit_depth - 1)
+    assert len(extract_features(lines.astype(dtype), bit_depth)) == 0
+
+
+# -- vectorised over the block ------------------------------------------------------------
+
+
+def test_block_results_do_not_depend_on_block_size() -> None:
+    lines, _, _ = simulate("day-white", None)
+    block = lines["cam3"]
+    whole = extract_features(block, 8)
+    starts = list(range(0, block.shape[0], 23))
+    parts = [extract_features(block[s : s + 23], 8) for s in starts]
+    joined = LineFeatures.concatenate(parts, starts)
+    assert len(whole) == len(joined) > 64
+    for field in dataclasses.fields(LineFeatures):
+        np.testing.assert_array_equal(getattr(whole, field.name), getattr(joined, field.name))
+    single = extract_features(block[17:18], 8)
+    np.testing.assert_array_equal(single.centre_px, whole.centre_px[whole.scan == 17])
+
+
+# -- synthetic edges: the sub-pixel estimator's bias --------------------------------------
+
+
+def blurred_face(face_left: float, face_right: float, blur: float, width: int = 256):
+    """A bright flat face on a dimmer wire on a dark sky, pixel-integrated after a Gaussian
+    blur (exact: the integral of the error function over each pixel)."""
+    from scipy.special import erf
+
+    u = np.arange(width, dtype=np.float64)
+
+    def box(a: float, b: float) -> np.ndarray:
+        def integral(x: np.ndarray, e: float) -> np.ndarray:
+            z = (x - e) / blur
+            return blur * (
+                z * 0.5 * (1 + erf(z / np.sqrt(2))) + np.exp(-z * z / 2) / np.sqrt(2 * np.pi)
+            )
+
+        step_a = integral(u + 0.5, a) - integral(u - 0.5, a)
+        step_b = integral(u + 0.5, b) - integral(u - 0.5, b)
+        return step_a - step_b  # coverage of [a, b] per pixel
+
+    centre = 0.5 * (face_left + face_right)
+    return 2.0 + 10.0 * box(centre - 14.0, centre + 14.0) + 60.0 * box(face_left, face_right)
+
+
+@pytest.mark.parametrize("blur", [0.5, 0.8, 1.2, 1.8])
+def test_sub_pixel_edges_are_unbiased_on_blurred_steps(blur: float) -> None:
+    """Noise-free blurred faces at every sub-pixel phase: edge bias and spread."""
+    phases = np.linspace(0.0, 1.0, 40, endpoint=False)
+    lines = np.stack([blurred_face(120.0 + p, 131.3 + p, blur) for p in phases])
+    f = extract_features(np.rint(lines * 200.0).astype(np.uint16), 16)
+    assert len(f) == phases.shape[0]
+    err_l = f.face_left_px - (120.0 + phases)
+    err_r = f.face_right_px - (131.3 + phases)
+    tolerance = 0.02 if blur >= 0.8 else 0.05
+    assert np.max(np.abs(err_l)) < tolerance
+    assert np.max(np.abs(err_r)) < tolerance
+    assert abs(np.mean(err_r - err_l)) < 0.01
+
+
+# -- the API --------------------------------------------------------------------------------
+
+
+def test_empty_and_invalid_input() -> None:
+    assert len(extract_features(np.zeros((0, 4096), np.uint8), 8)) == 0
+    assert len(extract_features(np.zeros((3, 8), np.uint8), 8)) == 0
+    with pytest.raises(ValueError, match="2-D"):
+        extract_features(np.zeros(4096, np.uint8), 8)
+    with pytest.raises(ValueError, match="uint8 or uint16"):
+        extract_features(np.zeros((2, 4096), np.float32), 8)
+    with pytest.raises(ValueError, match="bit_depth"):
+        extract_features(np.zeros((2, 4096), np.uint8), 12)
+    with pytest.raises(ValueError, match="wire_width_px"):
+        FeatureConfig(wire_width_px=(30.0, 20.0))
+
+
+def test_config_from_resolution() -> None:
+    cfg = FeatureConfig.from_resolution((10.6, 14.8), (0.5, 0.2))
+    assert cfg.wire_width_px == pytest.approx((21.2, 74.0))
+    assert cfg.background == pytest.approx(148.0)
+    assert cfg.min_width < 21.2 < 74.0 < cfg.max_width
+
+
+def test_rig_specific_config_finds_the_same_faces() -> None:
+    """The demo rig's own range (12.9 mm wires at 0.27-0.44 mm/px) finds the same faces."""
+    lines, _, _ = simulate("night", 5.0)
+    cfg = FeatureConfig.from_resolution((12.9, 12.9), (0.27, 0.44))
+    a = extract_features(lines["cam2"], 8)
+    b = extract_features(lines["cam2"], 8, config=cfg)
+    face_a = a.face_left_px[a.has_face]
+    face_b = b.face_left_px[b.has_face]
+    assert face_a.shape == face_b.shape
+    np.testing.assert_allclose(face_a, face_b, atol=1e-9)
+
+
+def test_any_line_width() -> None:
+    """Nothing assumes the demo rig's 4096 pixels: a wire on a 2000-px line (not a multiple
+    of the bin) and at both ends of the line."""
+    line = blurred_face(1000.2, 1011.5, 1.0, width=2000)
+    ends = np.stack([line, np.roll(line, -960), np.roll(line, 960)])
+    f = extract_features(np.rint(ends * 3.0).astype(np.uint8), 8)
+    assert len(f) == 3
+    np.testing.assert_allclose(f.face_width_px, 11.3, atol=0.05)

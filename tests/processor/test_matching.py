@@ -1,0 +1,447 @@
+"""Stereo matching (paper 3.1, figure 4) against the simulator's ground truth.
+
+The candidates are made from the truth of a simulated chunk (where each wire, its silhouette
+and its worn face fall in every camera, ``CameraTruth``) with 0.05 px of noise, so that the
+matching is tested on its own, on the demo rig's true cameras: four wires of an overlap in
+view, a blind camera, missed detections, ghosts, twelve wires, merged silhouettes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from catenary_linescan.calibration import resolution_table_from_camera
+from catenary_linescan.camera import LineScanCamera
+from catenary_linescan.processor.matching import (
+    MatchConfig,
+    Matches,
+    camera_sigmas_px,
+    covering_pairs,
+    face_widths_mm,
+    match,
+    pad_candidates,
+)
+from catenary_linescan.simulator import DEMO_RIG_PATH, Simulation, load_rig, parse_settings
+from catenary_linescan.simulator.simulation import Chunk
+
+NOISE_PX = 0.05
+RMS_PX = 0.05  # the calibration's reprojection RMS the tests assume
+
+
+@dataclass
+class Features:
+    """A flat feature table (the ``FeatureTable`` protocol)."""
+
+    scan: np.ndarray
+    centre_px: np.ndarray
+    left_px: np.ndarray
+    right_px: np.ndarray
+    face_left_px: np.ndarray
+    face_right_px: np.ndarray
+    contrast: np.ndarray
+    polarity: np.ndarray
+
+    def drop(self, rows: np.ndarray) -> Features:
+        keep = np.ones(self.scan.shape, bool)
+        keep[rows] = False
+        return Features(*(getattr(self, f)[keep] for f in self.__dataclass_fields__))
+
+    def add(self, other: Features) -> Features:
+        values = [
+            np.concatenate([getattr(self, f), getattr(other, f)]) for f in self.__dataclass_fields__
+        ]
+        order = np.lexsort((values[1], values[0]))
+        return Features(*(v[order] for v in values))
+
+
+def features_from_truth(chunk: Chunk, names: list[str], rng: np.random.Generator):
+    """Per camera, the candidates a perfect feature extractor would give, plus noise.
+
+    Contact wires give their face's edges and its midpoint (the contact point's image);
+    messengers their silhouette's middle. Wire ``m`` of scan ``s`` is row ``wire_of``.
+    """
+    truth = chunk.truth
+    out, wire_of = [], []
+    for name in names:
+        cam = truth.cameras[name]
+        seen = np.isfinite(cam.left_px) & (cam.left_px > 1.0) & (cam.right_px < 4094.0)
+        s, m = np.nonzero(seen)
+        face_l = cam.face_left_px[s, m] + rng.normal(0, NOISE_PX, s.shape)
+        face_r = cam.face_right_px[s, m] + rng.normal(0, NOISE_PX, s.shape)
+        left = cam.left_px[s, m] + rng.normal(0, NOISE_PX, s.shape)
+        right = cam.right_px[s, m] + rng.normal(0, NOISE_PX, s.shape)
+        has_face = np.isfinite(face_l) & (face_r - face_l > 1.0)
+        face_l = np.where(has_face, face_l, np.nan)
+        face_r = np.where(has_face, face_r, np.nan)
+        centre = np.where(has_face, 0.5 * (face_l + face_r), 0.5 * (left + right))
+        order = np.lexsort((centre, s))
+        table = Features(
+            s[order],
+            centre[order],
+            left[order],
+            right[order],
+            face_l[order],
+            face_r[order],
+            np.full(s.shape, 0.3),
+            np.ones(s.shape, np.int8),
+        )
+        out.append(table)
+        wire_of.append(m[order])
+    return out, wire_of
+
+
+@pytest.fixture(scope="module")
+def rig_cameras() -> tuple[list[str], list[LineScanCamera]]:
+    rig = load_rig(DEMO_RIG_PATH)
+    return [c.name for c in rig.cameras], [c.model() for c in rig.cameras]
+
+
+@pytest.fixture(scope="module")
+def overlap_chunk() -> Chunk:
+    """A chunk of scans at an overlap's middle mast: two contact wires, two messengers."""
+    sim = Simulation(parse_settings({"seed": 21, "overlap": True, "length_m": 300.0}))
+    middle = sim.scene.masts[sim.scene.overlap_masts[1]].chainage_m
+    chainage = sim.motion.chainage_m(sim.motion.scan_times(0, sim.scans))
+    scan = int(np.searchsorted(chainage, middle))
+    chunk = sim.chunk(scan // sim.chunk_scans)
+    assert np.all(chunk.truth.present.sum(axis=1) == 4)
+    return chunk
+
+
+def verified(cameras, candidates, sigma_px, config=None) -> Matches:
+    """The points ``match`` verified (``min_cameras`` cameras)."""
+    matches = match(cameras, candidates, sigma_px, config)
+    return matches.take(matches.verified)
+
+
+def sigma(n: int = 4, rms: float = RMS_PX) -> np.ndarray:
+    return camera_sigmas_px([rms] * n, 0.15)
+
+
+def truth_of(matches: Matches, chunk: Chunk, names, cameras):
+    """Nearest true wire of each match (by its contact point, or a messenger's axis)."""
+    truth = chunk.truth
+    x = truth.x_roof_mm[matches.scan]
+    z = truth.z_roof_mm[matches.scan]
+    contact = np.isfinite(truth.wear_width_mm[matches.scan])
+    z = np.where(contact, z, z + 7.0)  # a messenger's axis, 7 mm above its underside
+    distance = np.hypot(x - matches.x_mm[:, None], z - matches.z_mm[:, None])
+    which = np.argmin(distance, axis=1)
+    return (
+        which,
+        distance[np.arange(matches.count), which],
+        contact[np.arange(matches.count), which],
+    )
+
+
+def test_four_wires_of_an_overlap_are_all_found(overlap_chunk, rig_cameras) -> None:
+    names, cameras = rig_cameras
+    features, _ = features_from_truth(overlap_chunk, names, np.random.default_rng(1))
+    candidates = pad_candidates(features, overlap_chunk.scans)
+    matches = verified(cameras, candidates, sigma())
+    which, distance, contact = truth_of(matches, overlap_chunk, names, cameras)
+    # one point per wire and scan, nothing else
+    assert matches.count == 4 * overlap_chunk.scans
+    counts = np.bincount(matches.scan * 4 + which, minlength=4 * overlap_chunk.scans)
+    assert np.all(counts == 1)
+    # contact points to a fraction of a millimetre; messengers (their axis) to a few mm
+    assert np.max(distance[contact]) < 0.3
+    assert np.max(distance[~contact]) < 5.0
+    assert np.all(matches.from_face[contact])
+    assert np.all(matches.cameras == 4)
+
+
+def test_a_blind_camera_leaves_three(overlap_chunk, rig_cameras) -> None:
+    names, cameras = rig_cameras
+    for blind in range(4):
+        features, _ = features_from_truth(overlap_chunk, names, np.random.default_rng(2))
+        features[blind] = features[blind].drop(np.arange(features[blind].scan.shape[0]))
+        matches = verified(cameras, pad_candidates(features, overlap_chunk.scans), sigma())
+        _which, distance, contact = truth_of(matches, overlap_chunk, names, cameras)
+        assert matches.count == 4 * overlap_chunk.scans, f"camera {blind} blind"
+        assert np.max(distance[contact]) < 0.5
+        assert np.all(matches.slot[:, blind] == -1)
+        assert np.all(matches.cameras == 3)
+
+
+def test_a_missed_wire_in_one_camera(overlap_chunk, rig_cameras) -> None:
+    names, cameras = rig_cameras
+    rng = np.random.default_rng(3)
+    features, wire_of = features_from_truth(overlap_chunk, names, rng)
+    # camera 2 misses contact wire B (id 2) in every other scan, camera 0 contact wire A in
+    # a random fifth of the scans
+    miss = np.flatnonzero((wire_of[2] == 2) & (features[2].scan % 2 == 0))
+    features[2] = features[2].drop(miss)
+    miss = np.flatnonzero((wire_of[0] == 0) & (rng.random(wire_of[0].shape) < 0.2))
+    features[0] = features[0].drop(miss)
+    matches = verified(cameras, pad_candidates(features, overlap_chunk.scans), sigma())
+    _, distance, contact = truth_of(matches, overlap_chunk, names, cameras)
+    assert matches.count == 4 * overlap_chunk.scans
+    assert np.max(distance[contact]) < 0.5
+
+
+def test_two_views_cannot_be_verified(overlap_chunk, rig_cameras) -> None:
+    names, cameras = rig_cameras
+    features, _ = features_from_truth(overlap_chunk, names, np.random.default_rng(4))
+    for blind in (1, 2):
+        features[blind] = features[blind].drop(np.arange(features[blind].scan.shape[0]))
+    candidates = pad_candidates(features, overlap_chunk.scans)
+    assert verified(cameras, candidates, sigma()).count == 0
+    # a rig of two cameras (or a setting) takes two views: every pairing is a point then
+    loose = verified(cameras, candidates, sigma(), MatchConfig(min_cameras=2))
+    assert loose.count >= 4 * overlap_chunk.scans
+
+
+def test_two_view_points_are_returned_unverified(overlap_chunk, rig_cameras) -> None:
+    """A blind camera and a wire missed by another leave two views: the point comes back
+    unverified (every pairing of unused detections does), for tracking to take where it
+    continues the wire."""
+    names, cameras = rig_cameras
+    features, wire_of = features_from_truth(overlap_chunk, names, np.random.default_rng(10))
+    features[1] = features[1].drop(np.arange(features[1].scan.shape[0]))  # blind
+    missed = np.flatnonzero((wire_of[3] == 0) & (features[3].scan % 3 == 0))
+    features[3] = features[3].drop(missed)  # contact wire A missed in a third of the scans
+    matches = match(cameras, pad_candidates(features, overlap_chunk.scans), sigma())
+    which, distance, _contact = truth_of(matches, overlap_chunk, names, cameras)
+    good = matches.verified
+    assert np.all(distance[good] < 5.0)
+    scans_missed = np.arange(0, overlap_chunk.scans, 3)
+    a_verified = good & (which == 0)
+    assert not np.any(np.isin(matches.scan[a_verified], scans_missed))
+    a_two = ~good & (which == 0) & (distance < 0.5)
+    np.testing.assert_array_equal(np.unique(matches.scan[a_two]), scans_missed)
+    assert np.all(matches.cameras[a_two] == 2)
+    # without the option, none
+    strict = match(
+        cameras, pad_candidates(features, overlap_chunk.scans), sigma(), MatchConfig(two_view=False)
+    )
+    assert np.all(strict.verified)
+
+
+def test_spurious_candidates_make_few_points(overlap_chunk, rig_cameras) -> None:
+    """Random candidates (glare, fittings seen by one camera), three per camera and scan,
+    make a point of two of them and a coincidence in a third camera in about one scan in ten:
+    each in one scan only, which tracking drops (``test_tracking``)."""
+    names, cameras = rig_cameras
+    rng = np.random.default_rng(5)
+    features, _ = features_from_truth(overlap_chunk, names, rng)
+    n = overlap_chunk.scans
+    for c in range(4):
+        s = np.repeat(np.arange(n), 3)
+        u = rng.uniform(50.0, 4040.0, s.shape)
+        nan = np.full(s.shape, np.nan)
+        noise = Features(
+            s, u, u - 8, u + 8, nan, nan, np.full(s.shape, 0.1), np.ones(s.shape, np.int8)
+        )
+        features[c] = features[c].add(noise)
+    matches = verified(cameras, pad_candidates(features, n), sigma())
+    _, distance, _ = truth_of(matches, overlap_chunk, names, cameras)
+    real = distance < 5.0
+    assert np.count_nonzero(real) == 4 * n  # every wire still found
+    ghosts = ~real
+    assert np.count_nonzero(ghosts) <= 0.2 * n
+    # never twice in a row at one place
+    s, x, z = matches.scan[ghosts], matches.x_mm[ghosts], matches.z_mm[ghosts]
+    near = np.hypot(x[:, None] - x[None, :], z[:, None] - z[None, :]) < 20.0
+    assert not np.any(near & (np.abs(s[:, None] - s[None, :]) == 1))
+
+
+def test_twelve_wires_in_view(rig_cameras) -> None:
+    """Turnouts and overlaps: the best systems follow 10-12 wires."""
+    _names, cameras = rig_cameras
+    rng = np.random.default_rng(6)
+    n, wires = 200, 12
+    x = np.linspace(-550.0, 550.0, wires)[None, :] + rng.normal(0.0, 5.0, (n, wires))
+    z = np.where(
+        np.arange(wires) % 3 == 0, 1500.0, np.where(np.arange(wires) % 3 == 1, 1900.0, 2400.0)
+    )
+    z = z[None, :] + rng.normal(0.0, 20.0, (n, wires))
+    features = []
+    for camera in cameras:
+        u = camera.project(x, z) + rng.normal(0.0, NOISE_PX, (n, wires))
+        s, m = np.nonzero(np.isfinite(u))
+        order = np.lexsort((u[s, m], s))
+        s, uu = s[order], u[s, m][order]
+        nan = np.full(s.shape, np.nan)
+        features.append(
+            Features(
+                s, uu, uu - 12, uu + 12, nan, nan, np.full(s.shape, 0.3), np.ones(s.shape, np.int8)
+            )
+        )
+    matches = verified(cameras, pad_candidates(features, n), sigma())
+    assert matches.count == n * wires
+    distance = np.hypot(
+        x[matches.scan] - matches.x_mm[:, None], z[matches.scan] - matches.z_mm[:, None]
+    )
+    assert np.max(distance.min(axis=1)) < 0.5
+    which = distance.argmin(axis=1)
+    assert np.all(np.bincount(matches.scan * wires + which) == 1)
+
+
+def test_a_wire_in_line_with_its_messenger(rig_cameras) -> None:
+    """In one camera a contact wire and its messenger are one silhouette (white daylight):
+    its centre is neither's. Two other cameras see each; the merged silhouette supports both."""
+    _names, cameras = rig_cameras
+    rng = np.random.default_rng(7)
+    n = 100
+    x_wire = np.full(n, 120.0)
+    z_wire = np.full(n, 1700.0)
+    # the messenger 1200 mm up, exactly on camera 2's ray through the wire
+    centre = cameras[2].centre_mm
+    direction = np.array([x_wire[0] - centre[0], z_wire[0] - centre[1]])
+    direction /= np.hypot(*direction)
+    x_mess = np.full(n, x_wire[0] + direction[0] * 1200.0 / direction[1])
+    z_mess = np.full(n, 2900.0)
+    features = []
+    for c, camera in enumerate(cameras):
+        u_w = camera.project(x_wire, z_wire) + rng.normal(0, NOISE_PX, n)
+        u_m = camera.project(x_mess, z_mess) + rng.normal(0, NOISE_PX, n)
+        s = np.arange(n)
+        nan = np.full(n, np.nan)
+        one = np.ones(n, np.int8)
+        if c == 2:  # one merged, darker silhouette, 30 px, its centre off both
+            table = Features(s, u_w + 6.0, u_w - 15.0, u_w + 15.0, nan, nan, np.full(n, 0.5), -one)
+        elif c == 3:  # this camera misses the wire
+            table = Features(s, u_m, u_m - 8, u_m + 8, nan, nan, np.full(n, 0.4), -one)
+        else:
+            both = np.concatenate([u_w, u_m])
+            ss = np.concatenate([s, s])
+            order = np.lexsort((both, ss))
+            table = Features(
+                ss[order],
+                both[order],
+                both[order] - 10,
+                both[order] + 10,
+                np.full(2 * n, np.nan),
+                np.full(2 * n, np.nan),
+                np.full(2 * n, 0.4),
+                -np.ones(2 * n, np.int8),
+            )
+        features.append(table)
+    matches = verified(cameras, pad_candidates(features, n), sigma())
+    near_wire = np.hypot(matches.x_mm - x_wire[0], matches.z_mm - z_wire[0]) < 1.0
+    near_mess = np.hypot(matches.x_mm - x_mess[0], matches.z_mm - z_mess[0]) < 3.0
+    assert np.count_nonzero(near_wire) == n  # two cameras and the merged silhouette
+    assert np.count_nonzero(near_mess) == n
+    assert matches.count == 2 * n
+    assert np.all(matches.slot[near_wire][:, 2] == -1)  # its centre was not used
+    # without the merged silhouette's support the wire has two views only
+    strict = verified(
+        cameras, pad_candidates(features, n), sigma(), MatchConfig(support_merged=False)
+    )
+    assert not np.any(np.hypot(strict.x_mm - x_wire[0], strict.z_mm - z_wire[0]) < 1.0)
+
+
+def test_two_points_share_a_camera_s_detection(rig_cameras) -> None:
+    """Two objects in line in one camera give it one detection; the point the four cameras
+    confirm lends it to the one that has only that camera and two more."""
+    _names, cameras = rig_cameras
+    rng = np.random.default_rng(8)
+    n = 100
+    centre = cameras[1].centre_mm
+    a = np.array([-80.0, 1600.0])
+    direction = (a - centre) / np.hypot(*(a - centre))
+    b = a + direction * 900.0  # in line with a for camera 1
+    features = []
+    for c, camera in enumerate(cameras):
+        u = [
+            camera.project(np.full(n, p[0]), np.full(n, p[1])) + rng.normal(0, NOISE_PX, n)
+            for p in (a, b)
+        ]
+        if c == 1:
+            u = [u[0]]  # one detection for both
+        if c == 3:
+            u = [u[0]]  # camera 3 misses b
+        s = np.tile(np.arange(n), len(u))
+        uu = np.concatenate(u)
+        order = np.lexsort((uu, s))
+        s, uu = s[order], uu[order]
+        nan = np.full(s.shape, np.nan)
+        features.append(
+            Features(
+                s, uu, uu - 10, uu + 10, nan, nan, np.full(s.shape, 0.3), np.ones(s.shape, np.int8)
+            )
+        )
+    matches = verified(cameras, pad_candidates(features, n), sigma())
+    at_a = np.hypot(matches.x_mm - a[0], matches.z_mm - a[1]) < 1.0
+    at_b = np.hypot(matches.x_mm - b[0], matches.z_mm - b[1]) < 1.0
+    assert np.count_nonzero(at_a) == n
+    assert np.count_nonzero(at_b) == n
+    # each detection used once: camera 1's went to one of them
+    assert np.all((matches.slot[at_a, 1] >= 0) != (matches.slot[at_b, 1] >= 0))
+
+
+def test_the_window_follows_the_calibration(rig_cameras) -> None:
+    _names, cameras = rig_cameras
+    n = 50
+    x, z = np.full(n, 50.0), np.full(n, 2000.0)
+    features = []
+    for c, camera in enumerate(cameras):
+        u = camera.project(x, z) + (1.5 if c == 3 else 0.0)  # camera 3 off by 1.5 px
+        s = np.arange(n)
+        nan = np.full(n, np.nan)
+        features.append(
+            Features(s, u, u - 10, u + 10, nan, nan, np.full(n, 0.3), np.ones(n, np.int8))
+        )
+    candidates = pad_candidates(features, n)
+    tight = verified(cameras, candidates, sigma(rms=0.05))
+    loose = verified(cameras, candidates, sigma(rms=0.6))
+    assert np.all(tight.cameras == 3) and np.all(tight.slot[:, 3] == -1)
+    assert np.all(loose.cameras == 4)
+
+
+def test_face_widths_from_the_camera_model(overlap_chunk, rig_cameras) -> None:
+    names, cameras = rig_cameras
+    features, _ = features_from_truth(overlap_chunk, names, np.random.default_rng(9))
+    candidates = pad_candidates(features, overlap_chunk.scans)
+    matches = verified(cameras, candidates, sigma())
+    tables = [
+        resolution_table_from_camera(
+            c, np.arange(-600.0, 601.0, 100.0), np.arange(1300.0, 2501.0, 100.0)
+        )
+        for c in cameras
+    ]
+    roll = np.radians(overlap_chunk.truth.roll_deg)
+    widths = face_widths_mm(cameras, tables, candidates, matches, roll)
+    which, _distance, contact = truth_of(matches, overlap_chunk, names, cameras)
+    true_w = overlap_chunk.truth.wear_width_inplane_mm[matches.scan, which]
+    worn = contact & (true_w > 1.0)
+    error = widths.width_mm[worn] - true_w[worn]
+    # 0.05 px on each edge is 0.03 mm per camera at 0.4 mm/px, 0.014 mm over four
+    assert abs(np.mean(error)) < 0.005
+    assert np.sqrt(np.mean(error**2)) < 0.02
+    assert np.max(np.abs(error)) < 0.06
+    assert np.all(widths.cameras[worn] == 4)
+    # the look-up table of the same model agrees to its interpolation (about 1 %)
+    ratio = widths.table_ratio[worn]
+    assert np.nanmax(np.abs(ratio - 1.0)) < 0.01
+    # messengers have no face: width 0 (none seen), not NaN
+    assert np.all(widths.width_mm[~contact] == 0.0)
+    # a "face" wider than a contact wire can be is a fitting's: not a width
+    capped = face_widths_mm(cameras, tables, candidates, matches, roll, max_width_mm=3.0)
+    assert np.all(np.isnan(capped.width_mm[worn & (true_w > 3.5)]))
+
+
+def test_pad_candidates_caps_by_contrast_and_orders_by_position() -> None:
+    s = np.array([0, 0, 0, 1, 2, 2])
+    u = np.array([30.0, 10.0, 20.0, 5.0, 7.0, 3.0])
+    contrast = np.array([0.5, 0.1, 0.9, 0.2, 0.3, 0.4])
+    nan = np.full(6, np.nan)
+    table = Features(s, u, u - 1, u + 1, nan, nan, contrast, np.ones(6, np.int8))
+    padded = pad_candidates([table, table], 4, max_candidates=2)
+    assert padded.shape == (4, 2, 2)
+    np.testing.assert_array_equal(padded.centre_px[0, 0], [20.0, 30.0])  # 10 (weakest) out
+    np.testing.assert_array_equal(padded.centre_px[2, 1], [3.0, 7.0])
+    assert np.isnan(padded.centre_px[1, 0, 1]) and np.all(np.isnan(padded.centre_px[3]))
+    np.testing.assert_array_equal(padded.detection[0, 0], [2, 0])
+
+
+def test_covering_pairs() -> None:
+    centres = [np.array([x, 100.0]) for x in (-700.0, -250.0, 250.0, 700.0)]
+    pairs = covering_pairs(centres, 3)
+    assert pairs == [(0, 3), (1, 2)]  # the widest baseline first; every triple holds one
+    assert covering_pairs(centres, 2) == [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]
+    assert len(covering_pairs(centres[:3], 3)) == 1
