@@ -343,6 +343,82 @@ def test_sub_pixel_edges_are_unbiased_on_blurred_steps(blur: float) -> None:
     assert abs(np.mean(err_r - err_l)) < 0.01
 
 
+def silhouette(
+    left: float, right: float, face_left: float, face_right: float, face: float, width: int = 1024
+) -> np.ndarray:
+    """A dark wire (level 12) on a bright sky (110) with a flat face of level ``face`` between
+    ``face_left`` and ``face_right`` (no face when they are equal), pixel-integrated after a
+    Gaussian blur of 1 px: a white-daylight line."""
+    from scipy.special import erf
+
+    u = np.arange(width, dtype=np.float64)
+
+    def coverage(a: float, b: float) -> np.ndarray:
+        def integral(x: np.ndarray, e: float) -> np.ndarray:
+            z = x - e
+            return z * 0.5 * (1 + erf(z / np.sqrt(2))) + np.exp(-z * z / 2) / np.sqrt(2 * np.pi)
+
+        return (
+            integral(u + 0.5, a)
+            - integral(u - 0.5, a)
+            - integral(u + 0.5, b)
+            + integral(u - 0.5, b)
+        )
+
+    return 110.0 - 98.0 * coverage(left, right) + (face - 12.0) * coverage(face_left, face_right)
+
+
+@pytest.mark.parametrize("face", [97.0, 85.0, 60.0])
+def test_a_face_almost_as_bright_as_the_sky_does_not_split_its_wire(face: float) -> None:
+    """White daylight: a worn face 88 % and 77 % as bright as the sky is not detected against
+    it, and used to split its wire's silhouette into two dark candidates (each with a wrong
+    face). Its dark sides are one wire with the face between them, at every phase."""
+    phases = np.linspace(0.0, 1.0, 40, endpoint=False)
+    lines = np.stack([silhouette(500 + p, 535 + p, 512 + p, 526.3 + p, face) for p in phases])
+    f = extract_features(np.rint(lines * 200.0).astype(np.uint16), 16)
+    assert len(f) == phases.shape[0]
+    np.testing.assert_array_equal(f.scan, np.arange(phases.shape[0]))
+    assert np.all(f.polarity == -1)
+    assert np.max(np.abs(f.face_left_px - (512.0 + phases))) < 0.05
+    assert np.max(np.abs(f.face_right_px - (526.3 + phases))) < 0.05
+    assert np.max(np.abs(f.left_px - (500.0 + phases))) < 0.4
+    assert np.max(np.abs(f.right_px - (535.0 + phases))) < 0.4
+    # with shot and read noise, 8 bits
+    f = extract_features(with_noise(lines), 8)
+    assert len(f) == phases.shape[0]
+    edges = np.concatenate([f.face_left_px - (512.0 + phases), f.face_right_px - (526.3 + phases)])
+    assert np.sqrt(np.mean(edges**2)) < 0.1
+    assert np.max(np.abs(edges)) < 0.4
+
+
+def with_noise(lines: np.ndarray, seed: int = 5) -> np.ndarray:
+    """8-bit lines with shot noise (1.5 DN at the sky's 110) and a little read noise."""
+    rng = np.random.default_rng(seed)
+    sigma = np.sqrt(0.02 * lines + 0.1)
+    return np.clip(np.rint(lines + rng.normal(0.0, 1.0, lines.shape) * sigma), 0, 255).astype(
+        np.uint8
+    )
+
+
+def test_two_wires_with_sky_between_them_stay_two() -> None:
+    """Two dark wires (messengers side by side) with a strip of sky between them narrower
+    than a wire: the sky is not a face, they are two candidates without a face."""
+    phases = np.linspace(0.0, 1.0, 20, endpoint=False)
+    lines = np.stack(
+        [
+            silhouette(500 + p, 518 + p, 0.0, 0.0, 0.0)
+            + silhouette(532 + p, 550 + p, 0.0, 0.0, 0.0)
+            - 110.0
+            for p in phases
+        ]
+    )
+    f = extract_features(with_noise(lines), 8)
+    assert len(f) == 2 * phases.shape[0]
+    assert not np.any(f.has_face)
+    np.testing.assert_allclose(f.left_px[0::2], 500.0 + phases, atol=0.4)
+    np.testing.assert_allclose(f.right_px[1::2], 550.0 + phases, atol=0.4)
+
+
 # -- the API --------------------------------------------------------------------------------
 
 

@@ -22,7 +22,11 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
    low mean contrast, while the sky's texture changes far less over one bin. Runs of such
    bins are candidates (two runs one bin apart when a bright one meets a dark one: a face
    and its dark sides); runs wider than a wire can be are dropped (registration arms,
-   droppers seen along their length, glare).
+   droppers seen along their length, glare). Two dark runs are one candidate too when the
+   undetected run between them is narrower than the widest wire, together they span no
+   more than the widest wire, and it is darker than the sky beside them: a dark silhouette
+   whose worn face, lit from below, is almost as bright as the sky (white daylight), not two
+   wires with the sky between them (``_dark_joins``).
 3. **Wire boundaries** (step 2). On a pixel window per candidate, after a light
    ``[1, 2, 1] / 4`` smoothing, against the sky measured just beside it (clear of its
    neighbours): the run's extreme deviation gives the polarity and the contrast (it must
@@ -621,7 +625,11 @@ def _boundary(dev: np.ndarray, k0: np.ndarray, direction: int) -> FloatArray:
 
 
 def _candidates(
-    detected: NDArray[np.int8], cfg: FeatureConfig
+    detected: NDArray[np.int8],
+    data: np.ndarray,
+    sums: NDArray[np.float32],
+    sigma: NDArray[np.float32],
+    cfg: FeatureConfig,
 ) -> tuple[IntArray, IntArray, IntArray, IntArray, IntArray]:
     """Candidate runs of bins ``(row, start, stop)`` and the limits of the sky beside them
     ``(gap_l, gap_r)`` [px]: a bin clear of the neighbouring runs (if any)."""
@@ -635,10 +643,14 @@ def _candidates(
     width = detected.shape[1]
     end_sign = flat[row * width + stop - 1]
     start_sign = flat[row * width + start]
+    same_row = row[1:] == row[:-1]
     new = np.ones(row.shape[0], dtype=bool)
-    new[1:] = (
-        (row[1:] != row[:-1]) | (start[1:] - stop[:-1] > 1) | (end_sign[:-1] == start_sign[1:])
-    )
+    new[1:] = ~same_row | (start[1:] - stop[:-1] > 1) | (end_sign[:-1] == start_sign[1:])
+    # one candidate too: a dark silhouette split at its worn face (white daylight: the face
+    # may be almost as bright as the sky, so that it is not detected)
+    joined = _dark_joins(data, sums, sigma, cfg, row, start, stop, end_sign, start_sign)
+    if joined is not None:
+        new[1:] &= ~joined
     first = np.flatnonzero(new)
     last = np.append(first[1:] - 1, row.shape[0] - 1)
     row, start, stop = row[first], start[first], stop[last]
@@ -649,6 +661,80 @@ def _candidates(
     gap_r = np.concatenate((np.where(same, (start[1:] - 1) * b, far), [far]))
     keep = (stop - start) * b <= cfg.max_width + 2 * b
     return row[keep], start[keep], stop[keep], gap_l[keep], gap_r[keep]
+
+
+def _dark_joins(
+    data: np.ndarray,
+    sums: NDArray[np.float32],
+    sigma: NDArray[np.float32],
+    cfg: FeatureConfig,
+    row: IntArray,
+    start: IntArray,
+    stop: IntArray,
+    end_sign: np.ndarray,
+    start_sign: np.ndarray,
+) -> NDArray[np.bool_] | None:
+    """Which consecutive runs (``i`` with ``i + 1``) are one dark silhouette split at its worn
+    face; None when none are.
+
+    Two dark runs are one wire when the bright run between them is narrower than the widest
+    wire, together they span no more than the widest wire (and the two bins its ends may
+    reach into), and that bright run is not the sky: a face is a surface of the wire lit by
+    what lies below it (the ground, the vehicle), darker than the sky, while the sky between
+    two separate objects (two messengers side by side) is the sky's level. A face brighter
+    than the sky by ``detect_rel`` is detected as a bright run and joined to its dark sides
+    already; one brighter by less is not told from the sky. The sky is the brightest of the
+    two bins on either side beyond a bin clear of the pair (a neighbour never makes the gap
+    look like a face); the gap's level is its brightest three-pixel mean (clear of the
+    blurred dark sides). Sky texture allowed: ``detect_rel`` of the sky's level over a
+    background window, pro rata over the distance from the gap to the sky measured. A group
+    of such runs wider than a wire is not joined.
+    """
+    b = cfg.bin_px
+    nb = sums.shape[1]
+    widest = cfg.wire_width_px[1] + 2 * b
+    gap_bins = start[1:] - stop[:-1]
+    pair = np.flatnonzero(
+        (row[1:] == row[:-1])
+        & (end_sign[:-1] < 0)
+        & (start_sign[1:] < 0)
+        & (gap_bins * b < cfg.wire_width_px[1])
+        & ((stop[1:] - start[:-1]) * b <= widest)
+    )
+    if pair.shape[0] == 0:
+        return None
+    r = row[pair]
+    g0 = stop[pair] * b  # the gap's pixels: [g0, g1)
+    g1 = start[pair + 1] * b
+    span = int((g1 - g0).max())
+    cols = g0[:, None] + np.arange(span)
+    inside = cols < g1[:, None]
+    px = data[r[:, None], np.minimum(cols, data.shape[1] - 1)].astype(np.float32)
+    trio = px[:, :-2] + px[:, 1:-1] + px[:, 2:] if span >= 3 else px.sum(axis=1, keepdims=True)
+    gap = np.where(inside[:, 2:] if span >= 3 else inside[:, :1], trio, -np.inf).max(axis=1)
+    gap *= np.float32(1.0 / 3.0) if span >= 3 else np.float32(1.0 / max(span, 1))
+    beside = np.concatenate(
+        [start[pair, None] - np.arange(2, 4), stop[pair + 1, None] + np.arange(1, 3)], axis=1
+    )
+    sky = sums[r[:, None], np.clip(beside, 0, nb - 1)].max(axis=1) * np.float32(1.0 / b)
+    middle = 0.5 * (g0 + g1)
+    reach = np.maximum(middle - (start[pair] - 2.5) * b, (stop[pair + 1] + 2.5) * b - middle)
+    texture = cfg.detect_rel * reach / cfg.background * sky
+    noise = cfg.detect_k * sigma[r] * math.sqrt(1.0 / 3.0 + 1.0 / b)
+    face = sky - gap > np.maximum(texture, noise)
+    pair = pair[face]
+    if pair.shape[0] == 0:
+        return None
+    join = np.zeros(row.shape[0] - 1, dtype=bool)
+    join[pair] = True
+    # groups of runs joined so: not wider than a wire
+    head = np.ones(row.shape[0], dtype=bool)
+    head[1:] = ~join
+    group = np.cumsum(head) - 1
+    heads = np.flatnonzero(head)
+    tails = np.append(heads[1:] - 1, row.shape[0] - 1)
+    fits = ((stop[tails] - start[heads]) * b <= widest)[group]
+    return join & fits[1:]
 
 
 @dataclass
@@ -983,7 +1069,7 @@ def _extract_group(data: np.ndarray, bit_depth: int, cfg: FeatureConfig) -> Line
     full = float((1 << bit_depth) - 1)
     sigma = _noise_sigma(data, cfg.noise_samples, cfg.noise_floor_lsb)  # (r,)
     sums = _bin_sums(data, cfg.bin_px)
-    cand = _candidates(_detect(sums, sigma, cfg), cfg)
+    cand = _candidates(_detect(sums, sigma, cfg), data, sums, sigma, cfg)
     if cand[0].shape[0] == 0:
         return LineFeatures.empty()
     own = (cand[2] - cand[1]) * cfg.bin_px + 2 * (cfg.bin_px + 2 * cfg.sharp_px + _SKY_PX)
