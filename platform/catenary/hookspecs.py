@@ -79,17 +79,29 @@ def catenary_processors() -> Iterable[Processor]:
 
 @hookspec
 def catenary_reporters() -> Iterable[Reporter]:
-    """Reports and exports (run report, maintenance report, linear events, CSV/Parquet)."""
+    """Reports and exports (run report, maintenance report, linear events, CSV/Parquet).
+
+    Return ``Reporter`` objects; ``Reporter.write(request, output_path)`` is called by
+    ``catenary report`` and by scheduled report jobs, and returns the path it wrote.
+    """
 
 
 @hookspec
 def catenary_notifiers() -> Iterable[Notifier]:
-    """Alert notification channels (e-mail, webhook)."""
+    """Alert notification channels (e-mail, webhook).
+
+    Return ``Notifier`` objects; ``Notifier.send(alert, settings)`` delivers one alert or
+    raises, in which case the core records the failure and retries later.
+    """
 
 
 @hookspec
 def catenary_commands() -> Iterable[Command]:
-    """Subcommands this plugin adds to the ``catenary`` CLI (click commands)."""
+    """Subcommands this plugin adds to the ``catenary`` CLI.
+
+    Return ``Command`` objects wrapping click commands; they are listed by ``catenary --help``
+    and run with the invocation's settings (``catenary.cli.app_of(ctx)``).
+    """
 
 
 @hookspec

@@ -215,3 +215,22 @@ def test_plugins_command_lists_load_errors(broken_distribution: Path) -> None:
     assert "Traceback" not in result.output
     strict = CliRunner().invoke(cli, ["plugins", "--strict"])
     assert strict.exit_code == 1
+
+
+def test_every_hook_is_documented_and_has_a_registry_caller() -> None:
+    """As datasette does: a hook without documentation, or that nothing calls, fails."""
+    import inspect
+
+    from catenary import hookspecs, plugins
+
+    hooks = [
+        name
+        for name, function in inspect.getmembers(hookspecs, inspect.isfunction)
+        if name.startswith("catenary_")
+    ]
+    assert len(hooks) >= 10
+    registry_source = inspect.getsource(plugins)
+    for name in hooks:
+        doc = inspect.getdoc(getattr(hookspecs, name)) or ""
+        assert len(doc.split()) >= 8, f"hook {name} is not documented"
+        assert f'"{name}"' in registry_source, f"hook {name} is never called by the registry"
