@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
 import click
@@ -37,19 +37,25 @@ def db() -> None:
     """Create and migrate the database schema (SQLite file by default, or --db URL)."""
 
 
+def _migrate(ctx: click.Context, move: Callable[[Engine, str], str | None], revision: str) -> None:
+    """Run ``move`` (``migrate.upgrade`` or ``downgrade``) and say where the database is."""
+    with _engine(ctx) as engine:
+        before = migrate.current_revision(engine)
+        after = move(engine, revision)
+        where = mask_url(engine.url)
+        if after == before:
+            click.echo(f"database {where} is already at {_describe_revision(after)}")
+        else:
+            verb = "upgraded" if move is migrate.upgrade else "downgraded"
+            click.echo(f"database {where} {verb} to {_describe_revision(after)}")
+
+
 @db.command("upgrade")
 @click.argument("revision", default="head")
 @click.pass_context
 def upgrade_command(ctx: click.Context, revision: str) -> None:
     """Migrate the database up to REVISION (default: head, what this catenary needs)."""
-    with _engine(ctx) as engine:
-        before = migrate.current_revision(engine)
-        after = migrate.upgrade(engine, revision)
-        where = mask_url(engine.url)
-        if after == before:
-            click.echo(f"database {where} is already at {_describe_revision(after)}")
-        else:
-            click.echo(f"database {where} upgraded to {_describe_revision(after)}")
+    _migrate(ctx, migrate.upgrade, revision)
 
 
 @db.command("downgrade")
@@ -57,14 +63,7 @@ def upgrade_command(ctx: click.Context, revision: str) -> None:
 @click.pass_context
 def downgrade_command(ctx: click.Context, revision: str) -> None:
     """Migrate the database down to REVISION ('base' drops every table and its data)."""
-    with _engine(ctx) as engine:
-        before = migrate.current_revision(engine)
-        after = migrate.downgrade(engine, revision)
-        where = mask_url(engine.url)
-        if after == before:
-            click.echo(f"database {where} is already at {_describe_revision(after)}")
-        else:
-            click.echo(f"database {where} downgraded to {_describe_revision(after)}")
+    _migrate(ctx, migrate.downgrade, revision)
 
 
 @db.command("current")
