@@ -340,7 +340,14 @@ class _Geometry:
 
     @classmethod
     def of(cls, camera: LineScanCamera) -> _Geometry:
-        return cls(camera.matrix, camera.centre_mm, camera.optical_axis)
+        # the centre and axis cost tens of microseconds: computed once per camera model
+        matrix = camera.matrix
+        key = matrix.tobytes()
+        geometry = _geometries.get(key)
+        if geometry is None:
+            geometry = cls(matrix.copy(), camera.centre_mm, camera.optical_axis)
+            _geometries[key] = geometry
+        return geometry
 
     def depth(self, x: FloatArray, z: FloatArray) -> FloatArray:
         return np.asarray(
@@ -358,6 +365,9 @@ class _Geometry:
         return u, gx, gz
 
 
+_geometries: dict[bytes, _Geometry] = {}
+
+
 def _line_coefficients(m: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Equation 10's ``p, q, k``: the ray of ideal coordinate ``u`` is ``p x + q z = k``."""
     return m[0, 0] - u * m[1, 0], m[0, 1] - u * m[1, 1], u * m[1, 2] - m[0, 2]
@@ -366,41 +376,72 @@ def _line_coefficients(m: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatA
 @dataclass(frozen=True)
 class _Sorted:
     """One camera's candidates sorted along each scan's line, flattened with row offsets, so
-    that one ``searchsorted`` finds the nearest candidate for queries from any scans."""
+    that one ``searchsorted`` finds the nearest candidate for queries from any scans.
 
-    keys: FloatArray  # (n * K,) ascending
-    order: NDArray[np.intp]  # (n, K) slot of each sorted position
-    values: FloatArray  # (n, K) the candidates, by slot
+    Every field is flat, ``(n * K,)``, in sorted position: ``slot`` the candidate's index
+    along ``K``, ``value`` its coordinate, ``left`` and ``right`` its silhouette's edges,
+    ``polarity`` its polarity; a query's position indexes them all with 1-D takes.
+    """
+
+    keys: FloatArray  # ascending
+    slot: NDArray[np.intp]
+    value: FloatArray
+    left: FloatArray
+    right: FloatArray
+    polarity: NDArray[np.int8]
+    k: int
     span: float
 
     @classmethod
-    def of(cls, values: FloatArray, span: float) -> _Sorted:
-        n = values.shape[0]
-        order = np.argsort(np.where(np.isnan(values), np.inf, values), axis=1, kind="stable")
-        ordered = np.take_along_axis(values, order, axis=1)
-        offset = (np.arange(n, dtype=np.float64) * (4.0 * span))[:, np.newaxis]
+    def of(
+        cls,
+        values: FloatArray,
+        left: FloatArray,
+        right: FloatArray,
+        polarity: NDArray[np.int8],
+        span: float,
+    ) -> _Sorted:
+        n, k = values.shape
+        by_position = np.where(np.isnan(values), np.inf, values)
+        if np.all(by_position[:, 1:] >= by_position[:, :-1]):
+            # the usual case (pad_candidates sorts along the line): the stable sort's order
+            order = np.broadcast_to(np.arange(k), values.shape)
+        else:
+            order = np.argsort(by_position, axis=1, kind="stable")
+        flat = (order + (np.arange(n) * k)[:, np.newaxis]).ravel()
+        ordered = values.ravel()[flat]
+        offset = np.repeat(np.arange(n, dtype=np.float64) * (4.0 * span), k)
         keys = np.where(np.isnan(ordered), 1.5 * span, np.clip(ordered, -span, span)) + offset
-        return cls(keys.ravel(), order, values, span)
+        return cls(
+            keys,
+            order.ravel(),
+            ordered,
+            left.ravel()[flat],
+            right.ravel()[flat],
+            polarity.ravel()[flat],
+            k,
+            span,
+        )
 
     def nearest(
         self, scan: NDArray[np.intp], query: FloatArray
     ) -> tuple[NDArray[np.intp], FloatArray]:
-        """Slot of the candidate nearest each query in its scan, and ``query - candidate``.
+        """Sorted position of the candidate nearest each query in its scan, and
+        ``query - candidate``.
 
         ``scan`` and ``query`` are ``(h,)``; the residual is NaN where the scan has no
         candidate or the query is NaN.
         """
-        k = self.order.shape[1]
+        k = self.k
         span = self.span
         q = np.where(np.isnan(query), 0.0, np.clip(query, -span, span)) + scan * (4.0 * span)
         position = np.searchsorted(self.keys, q)
         row_start = scan * k
-        lower = np.clip(position - 1, row_start, row_start + k - 1)
-        upper = np.clip(position, row_start, row_start + k - 1)
-        pick = np.where(np.abs(self.keys[upper] - q) < np.abs(self.keys[lower] - q), upper, lower)
-        slot = self.order.ravel()[pick]
-        found = self.values[scan, slot]
-        return slot, query - found
+        lower = np.minimum(np.maximum(position - 1, row_start), row_start + (k - 1))
+        upper = np.minimum(np.maximum(position, row_start), row_start + (k - 1))
+        keys = self.keys
+        pick = np.where(np.abs(keys[upper] - q) < np.abs(keys[lower] - q), upper, lower)
+        return pick, query - self.value[pick]
 
 
 # -- the matching -----------------------------------------------------------------------------
@@ -458,6 +499,154 @@ class _Hypotheses:
     chi2: FloatArray  # (h,) sum of squared normalised residuals of the confirmations
 
 
+def _pairs_of(
+    valid_a: NDArray[np.bool_], valid_b: NDArray[np.bool_]
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Flat ``(n * K)`` indices of every combination of a valid candidate of camera ``a``
+    with one of camera ``b`` in the same scan, in the order of ``np.nonzero`` over
+    ``(scan, slot_a, slot_b)``."""
+    k = valid_a.shape[1]
+    ia = np.flatnonzero(valid_a)
+    ib = np.flatnonzero(valid_b)
+    count_b = np.count_nonzero(valid_b, axis=1)
+    start_b = np.cumsum(count_b) - count_b
+    scan_a = ia // k
+    reps = count_b[scan_a]
+    rows_a = np.repeat(ia, reps)
+    ends = np.cumsum(reps)
+    within = np.arange(rows_a.shape[0]) - np.repeat(ends - reps, reps)
+    rows_b = ib[np.repeat(start_b[scan_a], reps) + within]
+    return rows_a, rows_b
+
+
+def _enumerate_by_pair(
+    geometry: Sequence[_Geometry],
+    u: FloatArray,
+    silhouette: tuple[FloatArray, FloatArray],
+    polarity: NDArray[np.int8],
+    sigma: FloatArray,
+    config: MatchConfig,
+    span: float,
+    needed: int,
+    pairs: Sequence[tuple[int, int]],
+) -> _Hypotheses:
+    """Steps 2-3 of the module docstring, one camera pair at a time (many scans: the
+    pair's arrays stay in the cache and its cameras' coefficients are scalars)."""
+    _, n_cameras, k = u.shape
+    # per camera, flat (n * K,) and contiguous: 1-D takes are far cheaper than 3-index ones
+    u_of = [np.ascontiguousarray(u[:, c, :]) for c in range(n_cameras)]
+    pol_of = [np.ascontiguousarray(polarity[:, c, :]).ravel() for c in range(n_cameras)]
+    lines = [
+        [v.ravel() for v in _line_coefficients(geometry[c].m, u_of[c])] for c in range(n_cameras)
+    ]
+    valid = [np.isfinite(v) for v in u_of]
+    sorted_u: dict[int, _Sorted] = {}
+    parts: list[_Hypotheses] = []
+    x_lo, x_hi = config.x_range_mm
+    z_lo, z_hi = config.z_range_mm
+    for a, b in pairs:
+        ga, gb = geometry[a], geometry[b]
+        # all combinations of a valid candidate of a with one of b in the same scan
+        rows_a, rows_b = _pairs_of(valid[a], valid[b])
+        pa, qa, ka = (v[rows_a] for v in lines[a])
+        pb, qb, kb = (v[rows_b] for v in lines[b])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            det = pa * qb - pb * qa
+            x = (qb * ka - qa * kb) / det
+            z = (pa * kb - pb * ka) / det
+            ok = (x >= x_lo) & (x <= x_hi) & (z >= z_lo) & (z <= z_hi)
+        pol_a, pol_b = pol_of[a][rows_a], pol_of[b][rows_b]
+        if config.match_polarity:
+            ok &= (pol_a * pol_b) >= 0
+        with np.errstate(invalid="ignore"):
+            ok &= (ga.depth(x, z) > 0.0) & (gb.depth(x, z) > 0.0)
+        keep = np.flatnonzero(ok)
+        rows_a, rows_b, x, z, pa, qa, pb, qb, pol_a, pol_b = (
+            v[keep] for v in (rows_a, rows_b, x, z, pa, qa, pb, qb, pol_a, pol_b)
+        )
+        scan = rows_a // k
+        h = scan.shape[0]
+        pol = np.where(pol_a != 0, pol_a, pol_b)
+        slot_cols: list[NDArray[np.int64] | None] = [None] * n_cameras
+        inside_cols: list[NDArray[np.int64] | None] = [None] * n_cameras
+        slot_cols[a] = rows_a - scan * k
+        slot_cols[b] = rows_b - scan * k
+        count = np.full(h, 2, dtype=np.int64)
+        held = np.zeros(h, dtype=np.int64)
+        chi2 = np.zeros(h)
+        # gradients of u_a and u_b, for the uncertainty carried through the triangulation
+        _, gax, gaz = ga.project(x, z)
+        _, gbx, gbz = gb.project(x, z)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            den_a = gax * qb - gaz * pb
+            den_b = gbx * qa - gbz * pa
+        for c in range(n_cameras):
+            if c in (a, b):
+                continue
+            if c not in sorted_u:
+                sorted_u[c] = _Sorted.of(
+                    u_of[c], silhouette[0][:, c, :], silhouette[1][:, c, :], polarity[:, c, :], span
+                )
+            sc = sorted_u[c]
+            gc = geometry[c]
+            uc, gcx, gcz = gc.project(x, z)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                # moving u_a moves the point along b's ray (qb, -pb), and vice versa
+                da = (gcx * qb - gcz * pb) / den_a
+                db = (gcx * qa - gcz * pa) / den_b
+                variance = sigma[c] ** 2 + (da * sigma[a]) ** 2 + (db * sigma[b]) ** 2
+                window = np.maximum(config.confirm_sigmas * np.sqrt(variance), config.floor_px)
+                query = np.where(gc.depth(x, z) > 0.0, uc, np.nan)
+            pick, residual = sc.nearest(scan, query)
+            found = sc.slot[pick]
+            with np.errstate(invalid="ignore"):
+                confirmed = np.abs(residual) <= window
+                # the image falls inside a candidate whose centre does not confirm it:
+                # perhaps a merged silhouette (step 4 decides)
+                within = (query >= sc.left[pick]) & (query <= sc.right[pick])
+            if config.match_polarity:
+                same = (pol * sc.polarity[pick]) >= 0
+                confirmed &= same
+                within &= same
+            slot_cols[c] = np.where(confirmed, found, -1)
+            count += confirmed
+            chi2 += np.where(confirmed, residual * residual / variance, 0.0)
+            inside_c = within & ~confirmed
+            inside_cols[c] = np.where(inside_c, found, -1)
+            held += inside_c
+        # with two cameras confirming, merged silhouettes may still bring it to ``needed``
+        possible = count + held if config.support_merged else count
+        keep = np.flatnonzero(possible >= needed)
+        minus = np.full(keep.shape[0], -1, dtype=np.int64)
+        parts.append(
+            _Hypotheses(
+                scan[keep],
+                np.stack([minus if s is None else s[keep] for s in slot_cols], axis=1).astype(
+                    np.int64
+                ),
+                count[keep],
+                np.stack([minus if s is None else s[keep] for s in inside_cols], axis=1).astype(
+                    np.int64
+                ),
+                chi2[keep],
+            )
+        )
+    return _Hypotheses(
+        np.concatenate([p.scan for p in parts]),
+        np.concatenate([p.slot for p in parts]),
+        np.concatenate([p.count for p in parts]),
+        np.concatenate([p.inside for p in parts]),
+        np.concatenate([p.chi2 for p in parts]),
+    )
+
+
+_ENUMERATE_GROUP_ROWS = 1024
+"""Scans times pairs above which ``_enumerate`` takes the camera pairs one at a time
+(:func:`_enumerate_by_pair`): with few scans (the leftovers' passes) all pairs at once save
+NumPy calls, a microsecond or so each however few the rows; with many, one pair's arrays
+stay in the cache and its cameras' coefficients are scalars."""
+
+
 def _enumerate(
     geometry: Sequence[_Geometry],
     u: FloatArray,
@@ -469,85 +658,180 @@ def _enumerate(
     needed: int,
     pairs: Sequence[tuple[int, int]],
 ) -> _Hypotheses:
-    """Steps 2-3 of the module docstring for the given camera pairs."""
-    n_cameras = u.shape[1]
-    sorted_u = [_Sorted.of(u[:, c, :], span) for c in range(n_cameras)]
-    lines = [_line_coefficients(geometry[c].m, u[:, c, :]) for c in range(n_cameras)]
-    parts: list[_Hypotheses] = []
+    """Steps 2-3 of the module docstring for the given camera pairs.
+
+    Vectorised over the pairs as well as the scans where the scans are few: every array
+    has a row per combination (or hypothesis), its cameras' coefficients gathered per row,
+    so that the count of NumPy calls (a microsecond or so each, however few the rows) does
+    not grow with the pairs. The arithmetic per row is that of one pair at a time.
+    """
+    n, n_cameras, k = u.shape
+    if n * len(pairs) > _ENUMERATE_GROUP_ROWS:
+        return _enumerate_by_pair(
+            geometry, u, silhouette, polarity, sigma, config, span, needed, pairs
+        )
+    if not pairs or n == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        none = np.zeros((0, n_cameras), dtype=np.int64)
+        return _Hypotheses(empty.astype(np.intp), none, empty, none.copy(), np.zeros(0))
+    # per camera: M's coefficients, optical axis, centre, sigma: rows of (11, C)
+    coef = np.array(
+        [[*g.m[:2].ravel(), *g.axis[:2], *g.centre[:2]] for g in geometry],
+        dtype=np.float64,
+    ).T
+    coef = np.concatenate([coef, np.asarray(sigma, np.float64)[np.newaxis, :]])
+    m00, m01, m02, m10, m11, m12 = (v[np.newaxis, :, np.newaxis] for v in coef[:6])
+    # equation 10's lines of every candidate, flat over (n, C, K)
+    p_all = (m00 - u * m10).ravel()
+    q_all = (m01 - u * m11).ravel()
+    k_all = (u * m12 - m02).ravel()
+    pol_all = polarity.ravel()
+    valid = np.isfinite(u)
+    count = np.count_nonzero(valid, axis=2)  # (n, C)
+    valid_rows = np.flatnonzero(valid)  # by scan, camera and slot
+    valid_start = np.cumsum(count.ravel()) - count.ravel()  # of each (scan, camera)
+    # each camera's candidates sorted along each scan's line, camera-major (C, n, K), with
+    # row offsets: one search per pair and camera finds the nearest for all its rows
+    values = u.transpose(1, 0, 2)
+    by_position = np.where(np.isnan(values), np.inf, values)
+    if np.all(by_position[:, :, 1:] >= by_position[:, :, :-1]):
+        # the usual case (pad_candidates sorts along the line): the stable sort's order
+        order = np.broadcast_to(np.arange(k), values.shape)
+    else:
+        order = np.argsort(by_position, axis=2, kind="stable")
+    flat = (order + (np.arange(n_cameras * n) * k).reshape(n_cameras, n, 1)).ravel()
+    ordered = values.ravel()[flat]
+    offset = np.tile(np.repeat(np.arange(n, dtype=np.float64) * (4.0 * span), k), n_cameras)
+    keys = np.where(np.isnan(ordered), 1.5 * span, np.clip(ordered, -span, span)) + offset
+    keys_of = keys.reshape(n_cameras, n * k)
+    sorted_slot = order.ravel()
+    sorted_left = silhouette[0].transpose(1, 0, 2).ravel()[flat]
+    sorted_right = silhouette[1].transpose(1, 0, 2).ravel()[flat]
+    sorted_pol = polarity.transpose(1, 0, 2).ravel()[flat]
     x_lo, x_hi = config.x_range_mm
     z_lo, z_hi = config.z_range_mm
-    for a, b in pairs:
-        ga, gb = geometry[a], geometry[b]
-        # all K x K combinations: camera a's slots along axis 1, camera b's along axis 2
-        pa, qa, ka = (v[:, :, np.newaxis] for v in lines[a])
-        pb, qb, kb = (v[:, np.newaxis, :] for v in lines[b])
+
+    def enumerate_pairs(group: Sequence[tuple[int, int]]) -> _Hypotheses:
+        pair_a = np.array([a for a, _ in group], dtype=np.intp)
+        pair_b = np.array([b for _, b in group], dtype=np.intp)
+        others = np.array(
+            [[c for c in range(n_cameras) if c not in pair] for pair in group], dtype=np.intp
+        ).reshape(len(group), n_cameras - 2)
+        single = len(group) == 1
+
+        def per_row(table: FloatArray, pair: NDArray[np.intp]) -> list[FloatArray]:
+            """The coefficients of each row's camera (scalars for one pair)."""
+            return [v[0] for v in table] if single else [v[pair] for v in table]
+
+        # all combinations of a valid candidate of a with one of b in the same scan, by
+        # pair, then scan, a's slot and b's slot (the order of np.nonzero over K x K)
+        entry = np.flatnonzero(valid[:, pair_a, :].transpose(1, 0, 2))  # over (P, n, K)
+        pair = entry // (n * k)
+        scan = (entry // k) % n
+        slot_a = entry % k
+        reps = count[scan, pair_b[pair]]
+        starts = np.cumsum(reps) - reps
+        # np.repeat by counts copies element by element: the entry of each combination
+        # from a running count of the entries' starts instead
+        filled = np.flatnonzero(reps)
+        mark = np.zeros(int(starts[-1] + reps[-1]) if reps.shape[0] else 0, dtype=np.intp)
+        mark[starts[filled[1:]]] = 1
+        of = filled[np.cumsum(mark)]
+        pair, scan, slot_a = pair[of], scan[of], slot_a[of]
+        within = np.arange(of.shape[0]) - starts[of]
+        row_a = (scan * n_cameras + pair_a[pair]) * k + slot_a
+        row_b = valid_rows[valid_start[scan * n_cameras + pair_b[pair]] + within]
+        slot_b = row_b % k
+        pa, qa, ka = p_all[row_a], q_all[row_a], k_all[row_a]
+        pb, qb, kb = p_all[row_b], q_all[row_b], k_all[row_b]
+        ca = per_row(coef[6:10, pair_a], pair)
+        cb = per_row(coef[6:10, pair_b], pair)
         with np.errstate(divide="ignore", invalid="ignore"):
             det = pa * qb - pb * qa
             x = (qb * ka - qa * kb) / det
             z = (pa * kb - pb * ka) / det
             ok = (x >= x_lo) & (x <= x_hi) & (z >= z_lo) & (z <= z_hi)
+            ok &= ca[0] * (x - ca[2]) + ca[1] * (z - ca[3]) > 0.0
+            ok &= cb[0] * (x - cb[2]) + cb[1] * (z - cb[3]) > 0.0
+        pol_a, pol_b = pol_all[row_a], pol_all[row_b]
         if config.match_polarity:
-            ok &= (polarity[:, a, :, np.newaxis] * polarity[:, b, np.newaxis, :]) >= 0
-        scan, slot_a, slot_b = np.nonzero(ok)
-        x, z = x[scan, slot_a, slot_b], z[scan, slot_a, slot_b]
-        pa, qa = lines[a][0][scan, slot_a], lines[a][1][scan, slot_a]
-        pb, qb = lines[b][0][scan, slot_b], lines[b][1][scan, slot_b]
-        front = (ga.depth(x, z) > 0.0) & (gb.depth(x, z) > 0.0)
-        scan, slot_a, slot_b, x, z, pa, qa, pb, qb = (
-            v[front] for v in (scan, slot_a, slot_b, x, z, pa, qa, pb, qb)
-        )
-        h = scan.shape[0]
-        pol_a, pol_b = polarity[scan, a, slot_a], polarity[scan, b, slot_b]
+            ok &= (pol_a * pol_b) >= 0
         pol = np.where(pol_a != 0, pol_a, pol_b)
+        keep = np.flatnonzero(ok)
+        pair, scan, slot_a, slot_b, x, z, pa, qa, pb, qb, pol = (
+            v[keep] for v in (pair, scan, slot_a, slot_b, x, z, pa, qa, pb, qb, pol)
+        )
+        bounds = np.searchsorted(pair, np.arange(len(group) + 1)).tolist()
+        # M's coefficients (0-5) and sigma (10) of a and b
+        ca = per_row(coef[_PROJECTION, :][:, pair_a], pair)
+        cb = per_row(coef[_PROJECTION, :][:, pair_b], pair)
+        h = scan.shape[0]
+        # each row's column in (h, C): one column for one pair
+        rows: slice | NDArray[np.intp] = slice(None) if single else np.arange(h)
         slot = np.full((h, n_cameras), -1, dtype=np.int64)
-        slot[:, a] = slot_a
-        slot[:, b] = slot_b
-        count = np.full(h, 2, dtype=np.int64)
+        slot[rows, int(pair_a[0]) if single else pair_a[pair]] = slot_a
+        slot[rows, int(pair_b[0]) if single else pair_b[pair]] = slot_b
+        hits = np.full(h, 2, dtype=np.int64)
         inside = np.full((h, n_cameras), -1, dtype=np.int64)
         chi2 = np.zeros(h)
-        # gradients of u_a and u_b, for the uncertainty carried through the triangulation
-        _, gax, gaz = ga.project(x, z)
-        _, gbx, gbz = gb.project(x, z)
-        for c in range(n_cameras):
-            if c in (a, b):
-                continue
-            gc = geometry[c]
-            uc, gcx, gcz = gc.project(x, z)
-            with np.errstate(invalid="ignore", divide="ignore"):
-                # moving u_a moves the point along b's ray (qb, -pb), and vice versa
-                da = (gcx * qb - gcz * pb) / (gax * qb - gaz * pb)
-                db = (gcx * qa - gcz * pa) / (gbx * qa - gbz * pa)
-                variance = sigma[c] ** 2 + (da * sigma[a]) ** 2 + (db * sigma[b]) ** 2
+
+        def project(c: list[FloatArray]) -> tuple[FloatArray, FloatArray, FloatArray]:
+            den = c[3] * x + c[4] * z + c[5]
+            u_c = (c[0] * x + c[1] * z + c[2]) / den
+            return u_c, (c[0] - u_c * c[3]) / den, (c[1] - u_c * c[4]) / den
+
+        with np.errstate(invalid="ignore", divide="ignore"):
+            # gradients of u_a and u_b, for the uncertainty carried through the triangulation
+            _, gax, gaz = project(ca)
+            _, gbx, gbz = project(cb)
+            # moving u_a moves the point along b's ray (qb, -pb), and vice versa
+            den_a = gax * qb - gaz * pb
+            den_b = gbx * qa - gbz * pa
+            for j in range(n_cameras - 2):
+                cam_c = int(others[0, j]) if single else others[pair, j]
+                cc = per_row(coef[:, others[:, j]], pair)
+                uc, gcx, gcz = project(cc)
+                da = (gcx * qb - gcz * pb) / den_a
+                db = (gcx * qa - gcz * pa) / den_b
+                variance = cc[10] ** 2 + (da * ca[6]) ** 2 + (db * cb[6]) ** 2
                 window = np.maximum(config.confirm_sigmas * np.sqrt(variance), config.floor_px)
-            query = np.where(gc.depth(x, z) > 0.0, uc, np.nan)
-            found, residual = sorted_u[c].nearest(scan, query)
-            with np.errstate(invalid="ignore"):
-                confirmed = np.abs(residual) <= window
-            if config.match_polarity:
-                confirmed &= (pol * polarity[scan, c, found]) >= 0
-            slot[:, c] = np.where(confirmed, found, -1)
-            count += confirmed
-            chi2 += np.where(confirmed, residual * residual / variance, 0.0)
-            # the image falls inside a candidate whose centre does not confirm it: perhaps a
-            # merged silhouette (step 4 decides)
-            with np.errstate(invalid="ignore"):
-                within = (query >= silhouette[0][scan, c, found]) & (
-                    query <= silhouette[1][scan, c, found]
+                query = np.where(cc[6] * (x - cc[8]) + cc[7] * (z - cc[9]) > 0.0, uc, np.nan)
+                # the nearest candidate in camera c's row of the scan
+                q = np.where(np.isnan(query), 0.0, np.clip(query, -span, span)) + scan * (
+                    4.0 * span
                 )
-            if config.match_polarity:
-                within &= (pol * polarity[scan, c, found]) >= 0
-            inside[:, c] = np.where(within & ~confirmed, found, -1)
+                position = np.empty(h, dtype=np.intp)
+                for p, c in enumerate(others[:, j].tolist()):
+                    first, last = bounds[p], bounds[p + 1]
+                    position[first:last] = np.searchsorted(keys_of[c], q[first:last]) + c * n * k
+                row_start = (cam_c * n + scan) * k
+                lower = np.minimum(np.maximum(position - 1, row_start), row_start + (k - 1))
+                upper = np.minimum(np.maximum(position, row_start), row_start + (k - 1))
+                pick = np.where(np.abs(keys[upper] - q) < np.abs(keys[lower] - q), upper, lower)
+                residual = query - ordered[pick]
+                found = sorted_slot[pick]
+                confirmed = np.abs(residual) <= window
+                # the image falls inside a candidate whose centre does not confirm it:
+                # perhaps a merged silhouette (step 4 decides)
+                held = (query >= sorted_left[pick]) & (query <= sorted_right[pick])
+                if config.match_polarity:
+                    same = (pol * sorted_pol[pick]) >= 0
+                    confirmed &= same
+                    held &= same
+                slot[rows, cam_c] = np.where(confirmed, found, -1)
+                hits += confirmed
+                chi2 += np.where(confirmed, residual * residual / variance, 0.0)
+                inside[rows, cam_c] = np.where(held & ~confirmed, found, -1)
         # with two cameras confirming, merged silhouettes may still bring it to ``needed``
-        possible = count + (inside >= 0).sum(axis=1) if config.support_merged else count
-        keep = possible >= needed
-        parts.append(_Hypotheses(scan[keep], slot[keep], count[keep], inside[keep], chi2[keep]))
-    return _Hypotheses(
-        np.concatenate([p.scan for p in parts]),
-        np.concatenate([p.slot for p in parts]),
-        np.concatenate([p.count for p in parts]),
-        np.concatenate([p.inside for p in parts]),
-        np.concatenate([p.chi2 for p in parts]),
-    )
+        possible = hits + (inside >= 0).sum(axis=1) if config.support_merged else hits
+        keep = np.flatnonzero(possible >= needed)
+        return _Hypotheses(scan[keep], slot[keep], hits[keep], inside[keep], chi2[keep])
+
+    return enumerate_pairs(pairs)
+
+
+_PROJECTION = [0, 1, 2, 3, 4, 5, 10]
+"""Rows of ``_enumerate``'s table of camera coefficients for the projection, and sigma."""
 
 
 _BORROW_MAX_CHI2 = 1.0
@@ -592,7 +876,13 @@ def _resolve(
     n_cameras = hypotheses.slot.shape[1]
     extra = np.maximum(hypotheses.count - 2, 1).astype(np.float64)
     badness = np.minimum(hypotheses.chi2 / extra, 999.0)
-    order = np.lexsort((badness, -hypotheses.count, hypotheses.scan))
+    # np.lexsort((badness, -count, scan)) in two stable sorts, the second on one small
+    # integer key (scan, then more cameras first), which NumPy sorts by radix
+    by_badness = np.argsort(badness, kind="stable")
+    rank = hypotheses.scan * (n_cameras + 1) + (n_cameras - hypotheses.count)
+    small = n * (n_cameras + 1) <= np.iinfo(np.uint16).max
+    rank = rank.astype(np.uint16) if small else rank
+    order = by_badness[np.argsort(rank[by_badness], kind="stable")]
     scan = hypotheses.scan[order]
     slot = hypotheses.slot[order]
     inside = hypotheses.inside[order]
@@ -600,19 +890,23 @@ def _resolve(
     slot_k = np.where(has, slot, k)  # k: the camera is not in the hypothesis
     cameras = np.arange(n_cameras)[np.newaxis, :]
     owner = np.full((n, n_cameras, k + 1), -1, dtype=np.int64)
+    owner_flat = owner.reshape(-1)  # a view: one index instead of three per look-up
+    # each hypothesis's (scan, camera) row in the flat (n, C, K + 1) arrays, and its cells
+    base = (scan[:, np.newaxis] * n_cameras + cameras) * (k + 1)
+    cell = base + slot_k
     accepted_rows: list[NDArray[np.intp]] = []  # into the sorted hypotheses
     accepted_slot: list[IntArray] = []
 
     def accept(rows: NDArray[np.intp], use: NDArray[np.bool_]) -> None:
         first = sum(r.shape[0] for r in accepted_rows)
         index = np.arange(first, first + rows.shape[0])[:, np.newaxis]
-        owner[scan[rows][:, np.newaxis], cameras, np.where(use, slot_k[rows], k)] = index
+        owner_flat[np.where(use, cell[rows], base[rows] + k)] = index
         owner[:, :, k] = -1
         accepted_rows.append(rows)
         accepted_slot.append(np.where(use, slot[rows], -1))
 
     def owners(rows: NDArray[np.intp]) -> IntArray:
-        return owner[scan[rows][:, np.newaxis], cameras, slot_k[rows]]  # (g, C), -1: free
+        return owner_flat[cell[rows]]  # (g, C), -1: free
 
     # 1. greedy
     taken = np.zeros(scan.shape[0], dtype=bool)
@@ -651,7 +945,7 @@ def _resolve(
         rows_all = np.concatenate(accepted_rows)
         held = inside[rows_all]  # (a, C): candidates holding an accepted point's image
         merged = np.zeros((n, n_cameras, k + 1), dtype=bool)
-        merged[scan[rows_all][:, np.newaxis], cameras, np.where(held >= 0, held, k)] = True
+        merged.reshape(-1)[base[rows_all] + np.where(held >= 0, held, k)] = True
         merged[:, :, k] = False
         merged &= owner[:, :, :] < 0  # used by no point
         scans_with = np.flatnonzero(merged.any(axis=(1, 2)))
@@ -662,6 +956,8 @@ def _resolve(
             inside = np.concatenate([inside, extra.inside])
             has = slot >= 0
             slot_k = np.where(has, slot, k)
+            base = (scan[:, np.newaxis] * n_cameras + cameras) * (k + 1)
+            cell = base + slot_k
             taken = np.concatenate([taken, np.zeros(extra.scan.shape[0], dtype=bool)])
             count_all = np.concatenate([hypotheses.count[order], extra.count])
         else:
@@ -670,9 +966,7 @@ def _resolve(
         def supporting(rows: NDArray[np.intp]) -> IntArray:
             held = inside[rows]
             return np.asarray(
-                (merged[scan[rows][:, np.newaxis], cameras, np.where(held >= 0, held, k)]).sum(
-                    axis=1
-                ),
+                merged.reshape(-1)[base[rows] + np.where(held >= 0, held, k)].sum(axis=1),
                 dtype=np.int64,
             )
 
@@ -839,28 +1133,31 @@ def _separate(matches: Matches, min_separation_mm: float) -> Matches:
     m = matches.count
     if m < 2:
         return matches
-    order = np.lexsort(
-        (matches.reprojection_rms_px, -matches.cameras, ~matches.verified, matches.scan)
-    )
+    # np.lexsort((rms, -cameras, ~verified, scan)) in two stable sorts, the second on one
+    # integer key, which NumPy sorts by radix when it fits 16 bits
+    by_rms = np.argsort(matches.reprojection_rms_px, kind="stable")
+    most = int(matches.cameras.max())
+    rank = (matches.scan * 2 + ~matches.verified) * (most + 1) + (most - matches.cameras)
+    if int(rank.max()) <= np.iinfo(np.uint16).max:
+        rank = rank.astype(np.uint16)
+    order = by_rms[np.argsort(rank[by_rms], kind="stable")]
     ranked = matches.take(order)  # by scan, strongest first
     scan = ranked.scan
     start = np.searchsorted(scan, scan, side="left")
     slot = np.arange(m) - start
     width = int(slot.max()) + 1
-    x = np.full((m, width), np.nan)
-    z = np.full((m, width), np.nan)
     # for each point, the points of its scan ranked before it
-    rows = np.repeat(np.arange(m), width)
-    others = np.tile(np.arange(width), m)
-    before = others < slot[rows]
-    x[rows[before], others[before]] = ranked.x_mm[start[rows[before]] + others[before]]
-    z[rows[before], others[before]] = ranked.z_mm[start[rows[before]] + others[before]]
+    others = np.arange(width)
+    before = others[np.newaxis, :] < slot[:, np.newaxis]
+    index = np.minimum(start[:, np.newaxis] + others, m - 1)
+    x = np.where(before, ranked.x_mm[index], np.nan)
+    z = np.where(before, ranked.z_mm[index], np.nan)
     with np.errstate(invalid="ignore"):
         near = np.hypot(x - ranked.x_mm[:, np.newaxis], z - ranked.z_mm[:, np.newaxis])
         too_close = (near < min_separation_mm).any(axis=1)
-    # a point dropped does not suppress others (one level: pairs, the case that occurs)
-    kept = ranked.take(~too_close)
-    return kept.take(np.argsort(kept.scan, kind="stable"))
+    # a point dropped does not suppress others (one level: pairs, the case that occurs);
+    # ranked by scan first, the points kept are in scan order
+    return ranked.take(~too_close)
 
 
 _UNDISTORT_STEP_PX = 0.25
@@ -884,11 +1181,10 @@ def _undistort(camera: LineScanCamera, u_px: FloatArray) -> FloatArray:
     if table is None:
         grid = np.arange(-0.5 * camera.pixels, 1.5 * camera.pixels, _UNDISTORT_STEP_PX)
         table = (grid, camera.undistort(grid))
-        if np.all(np.isfinite(table[1])):
-            _undistort_tables[key] = table
+        if not np.all(np.isfinite(table[1])):
+            return camera.undistort(u_px)
+        _undistort_tables[key] = table  # only finite tables are kept
     grid, ideal = table
-    if not np.all(np.isfinite(ideal)):
-        return camera.undistort(u_px)
     # the grid is uniform: the cell is found by arithmetic, not by a search
     position = (u_px - grid[0]) / _UNDISTORT_STEP_PX
     inside = (position >= 0.0) & (position < grid.shape[0] - 1)  # False for NaN
@@ -911,14 +1207,23 @@ def _pinhole(camera: LineScanCamera) -> LineScanCamera:
     """The camera without its radial term (equation 8 alone)."""
     if camera.k1 == 0.0:
         return camera
-    return LineScanCamera(camera.name, camera.pixels, camera.matrix, 0.0)
+    key = (camera.name, camera.pixels, camera.matrix.tobytes())
+    pinhole = _pinholes.get(key)
+    if pinhole is None:  # built once per camera model (the cameras are immutable)
+        pinhole = LineScanCamera(camera.name, camera.pixels, camera.matrix, 0.0)
+        _pinholes[key] = pinhole
+    return pinhole
+
+
+_pinholes: dict[tuple[str, int, bytes], LineScanCamera] = {}
 
 
 def _gather(values: FloatArray, scan: IntArray, slot: IntArray) -> FloatArray:
     """``values[scan, c, slot[:, c]]`` per camera, NaN where ``slot`` is -1: ``(m, C)``."""
-    n_cameras = values.shape[1]
-    picked = values[scan[:, np.newaxis], np.arange(n_cameras)[np.newaxis, :], np.maximum(slot, 0)]
-    return np.where(slot >= 0, picked, np.nan)
+    _, n_cameras, k = values.shape
+    # one flat index: far cheaper than three broadcast ones
+    index = (scan[:, np.newaxis] * n_cameras + np.arange(n_cameras)) * k + np.maximum(slot, 0)
+    return np.where(slot >= 0, values.reshape(-1)[index], np.nan)
 
 
 def _triangulate_matches(
