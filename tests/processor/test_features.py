@@ -419,6 +419,27 @@ def test_two_wires_with_sky_between_them_stay_two() -> None:
     np.testing.assert_allclose(f.right_px[1::2], 550.0 + phases, atol=0.4)
 
 
+def test_cloud_texture_on_the_sky_pixels_does_not_move_a_boundary() -> None:
+    """A narrow cloud (6 DN) on the sky pixels beside a wire: the sky ramp through them is
+    wrong by a few DN next to the wire, which used to pull the right boundary 15 px into the
+    sky (and the face with it). The boundary's level stays above the sky's texture."""
+    phases = np.linspace(0.0, 1.0, 20, endpoint=False)
+    u = np.arange(1024.0)
+    lines = np.stack(
+        [
+            silhouette(500 + p, 535 + p, 512 + p, 526.3 + p, 60.0)
+            * (1.0 + 6.0 / 110.0 * np.exp(-(((u - 555.0 - p) / 3.0) ** 2)))
+            for p in phases
+        ]
+    )
+    f = extract_features(np.rint(lines * 200.0).astype(np.uint16), 16)
+    assert len(f) == phases.shape[0]
+    assert np.all(f.has_face)
+    assert np.max(np.abs(f.left_px - (500.0 + phases))) < 0.4
+    assert np.max(np.abs(f.right_px - (535.0 + phases))) < 0.4
+    assert np.max(np.abs(f.face_right_px - (526.3 + phases))) < 0.05
+
+
 # -- the API --------------------------------------------------------------------------------
 
 

@@ -32,9 +32,11 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
    neighbours): the run's extreme deviation gives the polarity and the contrast (it must
    pass ``detect_k`` and ``detect_rel`` at pixel level too); each boundary is where the
    deviation crosses half of its level just inside the outermost significant pixel
-   (``boundary_k`` noise deviations and ``boundary_rel`` of the peak). Candidates wider than
-   a wire can be, or narrower and without a face (``wire_width_px``, ``width_tolerance``:
-   the expected width at the measuring range), are dropped.
+   (``boundary_k`` noise deviations, ``boundary_rel`` of the peak, and three times the sky's
+   texture: the largest deviation of the sky pixels from the ramp between the two sides,
+   capped at ``detect_rel`` of the peak, beyond which it is a neighbour's edge). Candidates
+   wider than a wire can be, or narrower and without a face (``wire_width_px``,
+   ``width_tolerance``: the expected width at the measuring range), are dropped.
 4. **Wear face** (step 3). The worn face is brighter than the wire's round sides in every
    lighting, so its edges are the strongest rising and falling first differences inside the
    wire (the zero crossings of the second difference). For a bright object they are
@@ -95,6 +97,10 @@ _SKY_PX = 4
 """Pixels beside a candidate that measure the sky next to it."""
 _EDGE_PX = 4
 """Pixels inside a boundary over which its level is taken (a blurred step's rise)."""
+_TEXTURE = 3.0
+"""A boundary's level is at least this multiple of the sky's texture beside the wire (the
+largest deviation of its sky pixels from the ramp between them): texture grows with the
+distance from where the sky was measured, and a few DN of cloud must not pass for the wire."""
 _GUARD_PX = 3
 """Pixels inside a dark silhouette's boundaries left out of its face search."""
 _PROMINENCE = 0.75
@@ -792,8 +798,9 @@ def _fine(
     at_l = np.clip(gap_l - first_px, 0, margin - _SKY_PX)
     at_r = np.clip(gap_r - _SKY_PX - first_px, own - margin, own - _SKY_PX)
     quad = np.arange(_SKY_PX)
-    sky_l = xs4[(base + at_l)[:, None] + quad].mean(axis=1)
-    sky_r = xs4[(base + at_r)[:, None] + quad].mean(axis=1)
+    sky_px = xs4[np.concatenate([base + at_l, base + at_r])[:, None] + quad]  # (2m, _SKY_PX)
+    sky_lr = sky_px.mean(axis=1)
+    sky_l, sky_r = sky_lr[:m], sky_lr[m:]
     slope = (sky_r - sky_l) / (at_r - at_l).astype(np.float32)
     ramp0 = sky_l - slope * (at_l + np.float32(0.5 * (_SKY_PX - 1)))  # the sky at pixel 0
 
@@ -815,6 +822,16 @@ def _fine(
     # boundaries: transposed sub-windows ``(count, 2m)`` running from the sky beside each end
     # of the run to two bins inside it (left ends, then right ends reversed)
     level = np.maximum(cfg.boundary_k * s4, cfg.boundary_rel * np.abs(peak_dev))
+    # and above the sky's texture: the largest deviation of each side's sky pixels from the
+    # ramp (which runs through their mean): what the ramp does not model beside the wire
+    sky_px -= sky_lr[:, None]
+    sky_px -= np.concatenate([slope, slope])[:, None] * (quad - np.float32(0.5 * (_SKY_PX - 1)))
+    # (more than ``detect_rel`` of the wire's contrast is not the sky's texture but a
+    # neighbour's edge reaching into the sky pixels: the level is capped there)
+    texture = np.abs(sky_px).max(axis=1)
+    texture *= np.float32(_TEXTURE)
+    np.minimum(texture, np.float32(cfg.detect_rel) * np.abs(np.tile(peak_dev, 2)), out=texture)
+    level2 = np.maximum(np.concatenate([level, level]), texture)
     count = margin + 2 * b
     k = np.arange(count)[:, None]
     pixel = np.concatenate([np.broadcast_to(k, (count, m)), own - 1 - k], axis=1)
@@ -822,7 +839,7 @@ def _fine(
     dev -= np.concatenate([ramp0, ramp0]) + np.concatenate([slope, slope]) * pixel
     np.abs(dev, out=dev)
     first_k = np.concatenate([at_l + _SKY_PX, own - at_r])  # the search starts past the sky
-    above = (dev > np.concatenate([level, level])) & (k >= first_k)
+    above = (dev > level2) & (k >= first_k)
     k0 = count - (above * (count - k)).max(axis=0)  # the first above (count: none)
     inside = (k0 >= first_k) & (k0 < count)
     edge = _boundary(dev, np.minimum(k0, count - 1), +1)
