@@ -42,11 +42,9 @@ import numpy as np
 from catenary.domain import CameraLines, ScanBlock
 from catenary.vehicle import roof_to_track
 from catenary.wear import corrected_wear_width_mm, stagger_angle_by_wire_rad
-from catenary_linescan.calibrate import calibrate_from_captures
-from catenary_linescan.calibration import resolution_table_from_camera
-from catenary_linescan.camera import camera_from_pose
+from catenary_linescan.calibrate import calibrate_from_captures, rig_from_reports
 from catenary_linescan.processor.stereo import LineScanProcessor
-from catenary_linescan.rig import Rig, RigCamera
+from catenary_linescan.rig import Rig
 from catenary_linescan.simulator import DEMO_RIG_PATH, Simulation, load_rig, parse_settings
 from catenary_linescan.simulator.captures import write_captures
 from catenary_linescan.simulator.scene import generate_scene
@@ -130,34 +128,10 @@ def calibrated_rig(workdir: Path) -> Rig:
     """
     sim_rig = load_rig(DEMO_RIG_PATH)
     captures, _ = write_captures(workdir / "captures.h5", sim_rig, seed=7)
-    nominal = {}
-    for cam in sim_rig.cameras:
-        model = camera_from_pose(
-            cam.name,
-            cam.pixels,
-            cam.x_mm,
-            cam.z_mm,
-            cam.tilt_deg,
-            cam.focal_px,
-            (cam.pixels - 1) / 2.0,
-        )
-        table = resolution_table_from_camera(
-            model, np.array([-600.0, 600.0]), np.array([1300.0, 2500.0])
-        )
-        nominal[cam.name] = RigCamera(model, table)
     reports = calibrate_from_captures(
-        captures, distortion=None, approximate=Rig(sim_rig.vehicle, nominal)
+        captures, distortion=None, approximate=sim_rig.nominal_models()
     )
-    cameras = {
-        r.calibration.camera.name: RigCamera(
-            camera=r.calibration.camera,
-            resolution=r.table,
-            reprojection_rms_px=r.calibration.rms_px,
-            reprojection_max_px=r.calibration.max_px,
-        )
-        for r in reports
-    }
-    return Rig(vehicle=sim_rig.vehicle, cameras=cameras, source=captures.name)
+    return rig_from_reports(sim_rig.vehicle, reports, source=captures.name)
 
 
 def simulation(case: Case, quick: bool) -> Simulation:

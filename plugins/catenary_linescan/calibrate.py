@@ -19,6 +19,7 @@ table, and ``--pixels`` gives the line width.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -26,6 +27,7 @@ from pathlib import Path
 import click
 import numpy as np
 
+from catenary.domain import VehicleGeometry
 from catenary.errors import UserError
 from catenary.vehicle import load_vehicle_geometry
 from catenary_linescan.calibration import (
@@ -35,6 +37,7 @@ from catenary_linescan.calibration import (
     calibrate_camera,
     resolution_table_from_camera,
 )
+from catenary_linescan.camera import LineScanCamera
 from catenary_linescan.captures import measure_capture, read_capture, read_points_csv
 from catenary_linescan.rig import (
     DEFAULT_TABLE_X_MM,
@@ -66,12 +69,14 @@ class CameraReport:
 
 
 def calibrate_from_captures(
-    path: Path, *, distortion: bool | None, approximate: Rig | None
+    path: Path,
+    *,
+    distortion: bool | None,
+    approximate: Mapping[str, LineScanCamera] | None,
 ) -> list[CameraReport]:
-    """Calibrate every camera of a capture file."""
+    """Calibrate every camera of a capture file (``approximate``: cameras to assign targets)."""
     capture = read_capture(path)
-    cameras = None if approximate is None else {n: c.camera for n, c in approximate.cameras.items()}
-    measured = measure_capture(capture, cameras)
+    measured = measure_capture(capture, approximate)
     reports = []
     for name, lines in capture.cameras.items():
         targets = measured[name]
@@ -105,6 +110,27 @@ def calibrate_from_points(
         )
         reports.append(CameraReport(calibration, table))
     return reports
+
+
+def rig_from_reports(
+    vehicle: VehicleGeometry, reports: list[CameraReport], *, created_at: str = "", source: str = ""
+) -> Rig:
+    """The calibrated rig: each camera with its table, figures and measured table."""
+    return Rig(
+        vehicle=vehicle,
+        cameras={
+            r.calibration.camera.name: RigCamera(
+                camera=r.calibration.camera,
+                resolution=r.table,
+                reprojection_rms_px=r.calibration.rms_px,
+                reprojection_max_px=r.calibration.max_px,
+                measured_resolution=r.measured,
+            )
+            for r in reports
+        },
+        created_at=created_at,
+        source=source,
+    )
 
 
 def _print_reports(reports: list[CameraReport]) -> None:
@@ -172,22 +198,15 @@ def calibrate(
     if captures.suffix.lower() == ".csv":
         reports = calibrate_from_points(captures, pixels=pixels, distortion=estimate)
     else:
-        approximate = read_rig(approximate_path) if approximate_path is not None else None
+        approximate = None
+        if approximate_path is not None:
+            approximate = {n: c.camera for n, c in read_rig(approximate_path).cameras.items()}
         reports = calibrate_from_captures(captures, distortion=estimate, approximate=approximate)
     if len(reports) < 2:
         raise UserError(f"{captures}: holds {len(reports)} camera(s); a rig needs at least two")
-    rig = Rig(
-        vehicle=vehicle,
-        cameras={
-            r.calibration.camera.name: RigCamera(
-                camera=r.calibration.camera,
-                resolution=r.table,
-                reprojection_rms_px=r.calibration.rms_px,
-                reprojection_max_px=r.calibration.max_px,
-                measured_resolution=r.measured,
-            )
-            for r in reports
-        },
+    rig = rig_from_reports(
+        vehicle,
+        reports,
         created_at=datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
         source=captures.name,
     )

@@ -8,9 +8,8 @@ import h5py
 import numpy as np
 
 from catenary.runfile import open_run
-from catenary_linescan.calibrate import calibrate_from_captures
+from catenary_linescan.calibrate import calibrate_from_captures, rig_from_reports
 from catenary_linescan.processor.stereo import LineScanProcessor
-from catenary_linescan.rig import Rig, RigCamera
 from catenary_linescan.simulator import DEMO_RIG_PATH, load_rig
 from catenary_linescan.simulator.run import record_run
 
@@ -26,10 +25,7 @@ def test_a_run_with_a_sensor_fault_processes_with_the_stretch_flagged(tmp_path: 
     reports = calibrate_from_captures(
         DEMO_RIG_PATH.with_name("demo-captures.h5"), distortion=None, approximate=None
     )
-    rig = Rig(
-        load_rig(DEMO_RIG_PATH).vehicle,
-        {r.calibration.camera.name: RigCamera(r.calibration.camera, r.table) for r in reports},
-    )
+    rig = rig_from_reports(load_rig(DEMO_RIG_PATH).vehicle, reports)
     processor = LineScanProcessor(rig)
     scans, times, faults, observed = [], [], [], []
     with open_run(run_path) as run:

@@ -22,11 +22,9 @@ from catenary.domain import CameraLines, ScanBlock, VehicleSamples, WireObservat
 from catenary.errors import UserError
 from catenary.vehicle import roof_to_track
 from catenary.wear import corrected_wear_width_mm, stagger_angle_by_wire_rad
-from catenary_linescan.calibrate import calibrate_from_captures
-from catenary_linescan.calibration import resolution_table_from_camera
-from catenary_linescan.camera import camera_from_pose
+from catenary_linescan.calibrate import calibrate_from_captures, rig_from_reports
 from catenary_linescan.processor.stereo import LineScanProcessor, ProcessorConfig, create
-from catenary_linescan.rig import Rig, RigCamera, write_rig
+from catenary_linescan.rig import Rig, write_rig
 from catenary_linescan.simulator import DEMO_RIG_PATH, Simulation, load_rig, parse_settings
 from catenary_linescan.simulator.captures import write_captures
 from catenary_wiretypes import load_profiles
@@ -39,31 +37,8 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> Rig:
     """The demo rig calibrated from simulated captures (``catenary calibrate``'s way)."""
     sim_rig = load_rig(DEMO_RIG_PATH)
     path, _ = write_captures(tmp_path_factory.mktemp("captures") / "captures.h5", sim_rig, seed=3)
-    nominal = {}
-    for cam in sim_rig.cameras:
-        model = camera_from_pose(
-            cam.name,
-            cam.pixels,
-            cam.x_mm,
-            cam.z_mm,
-            cam.tilt_deg,
-            cam.focal_px,
-            (cam.pixels - 1) / 2.0,
-        )
-        grid = (np.array([-600.0, 600.0]), np.array([1300.0, 2500.0]))
-        nominal[cam.name] = RigCamera(model, resolution_table_from_camera(model, *grid))
-    reports = calibrate_from_captures(
-        path, distortion=None, approximate=Rig(sim_rig.vehicle, nominal)
-    )
-    return Rig(
-        vehicle=sim_rig.vehicle,
-        cameras={
-            r.calibration.camera.name: RigCamera(
-                r.calibration.camera, r.table, r.calibration.rms_px, r.calibration.max_px
-            )
-            for r in reports
-        },
-    )
+    reports = calibrate_from_captures(path, distortion=None, approximate=sim_rig.nominal_models())
+    return rig_from_reports(sim_rig.vehicle, reports)
 
 
 @dataclass

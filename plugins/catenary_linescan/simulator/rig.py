@@ -144,6 +144,19 @@ class SimCamera:
             self.k1,
         )
 
+    def nominal_model(self) -> LineScanCamera:
+        """The model of the mounting drawing: the design pose and focal length, the principal
+        point at the line's middle, no distortion (to assign calibration targets)."""
+        return camera_from_pose(
+            self.name,
+            self.pixels,
+            self.x_mm,
+            self.z_mm,
+            self.tilt_deg,
+            self.focal_px,
+            (self.pixels - 1) / 2.0,
+        )
+
     def defocus_diameter_px(self, depth_mm: ArrayLike) -> FloatArray:
         """Diameter of the thin-lens blur disc on the sensor [px] for objects at ``depth_mm``.
 
@@ -194,6 +207,10 @@ class SimRig:
     def models(self) -> dict[str, LineScanCamera]:
         """The true camera models by name."""
         return {camera.name: camera.model() for camera in self.cameras}
+
+    def nominal_models(self) -> dict[str, LineScanCamera]:
+        """The mounting drawing's camera models by name (:meth:`SimCamera.nominal_model`)."""
+        return {camera.name: camera.nominal_model() for camera in self.cameras}
 
 
 def _number(table: Mapping[str, Any], key: str, path: object, where: str, kinds: tuple) -> Any:
