@@ -1,0 +1,218 @@
+"""The measurement chain after the processor: roof frame to track frame to worn face width.
+
+A processor turns blocks of scans into :class:`~catenary.domain.WireObservations` in the roof
+frame, releasing each scan's rows when its wire tracking has decided them (possibly blocks
+later). :class:`MeasurementChain` takes the blocks and those observations, in run order, and
+gives :class:`TrackSamples`:
+
+1. **vehicle compensation** (``catenary.vehicle.roof_to_track``): each row is carried to the
+   track frame with the displacement sensors of its own scan, kept for ``history_m`` of track
+   behind the latest block (a processor must release a scan before the train is that far on);
+   a row whose scan had a faulty or missing sensor sample is flagged ``vehicle_fault``;
+2. **stagger-angle correction** (``catenary.wear``): ``w0 = w cos θ`` with ``θ`` from the
+   measured stagger gradient of the row's own wire, fitted with ``window_m`` of the wire's
+   samples on either side: a wire's rows are held until it has been seen ``window_m``
+   further, and the last ``window_m`` of rows already given out are kept as the left context.
+
+Memory is bounded by ``history_m`` of scans and ``2 window_m`` of rows per wire, whatever the
+run's length. Residual thickness and chainage come later, once the run's chainage is aligned
+(they need the mast register's wire types and the whole run's registration points).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+from numpy.typing import NDArray
+
+from catenary.domain import FloatArray, ScanBlock, VehicleGeometry, WireObservations
+from catenary.vehicle import roof_to_track
+from catenary.wear import DEFAULT_WINDOW_M, corrected_wear_width_mm, stagger_angle_rad
+
+__all__ = ["VEHICLE_HISTORY_M", "MeasurementChain", "TrackSamples"]
+
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
+VEHICLE_HISTORY_M = 200.0
+"""Track behind the latest block whose scans' sensor values are kept [m]: far more than any
+processor holds rows back (the line-scan tracker decides a wire within a few metres)."""
+
+
+@dataclass(frozen=True)
+class TrackSamples:
+    """Rows of contact wire samples in the track frame, each ``(m,)``.
+
+    ``wear_width_mm`` is across the wire (stagger-angle corrected); NaN where the cameras
+    did not agree on the face or the angle could not be fitted, 0.0 where no face was seen.
+    """
+
+    scan: IntArray
+    position_m: FloatArray
+    wire: IntArray
+    height_mm: FloatArray
+    stagger_mm: FloatArray
+    wear_width_mm: FloatArray
+    cameras: IntArray
+    vehicle_fault: BoolArray
+
+    @property
+    def rows(self) -> int:
+        return int(self.scan.shape[0])
+
+    @classmethod
+    def empty(cls) -> TrackSamples:
+        return cls(**{f.name: np.zeros(0, _DTYPES[f.name]) for f in fields(cls)})
+
+    @classmethod
+    def concatenate(cls, parts: list[TrackSamples]) -> TrackSamples:
+        if not parts:
+            return cls.empty()
+        return cls(
+            **{f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(cls)}
+        )
+
+    def take(self, index: NDArray[np.intp] | BoolArray) -> TrackSamples:
+        return TrackSamples(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
+
+
+_DTYPES = {
+    "scan": np.int64,
+    "position_m": np.float64,
+    "wire": np.int64,
+    "height_mm": np.float64,
+    "stagger_mm": np.float64,
+    "wear_width_mm": np.float64,
+    "cameras": np.int64,
+    "vehicle_fault": np.bool_,
+}
+
+
+class MeasurementChain:
+    """Vehicle compensation and stagger-angle correction of a processor's observations.
+
+    Parameters
+    ----------
+    geometry : VehicleGeometry
+        The car body's geometry (the rig calibration's vehicle).
+    window_m : float
+        Length of track of the stagger-gradient fit [m] (``catenary.wear``).
+    history_m : float
+        Track behind the latest block whose scans' sensors are kept [m].
+
+    Notes
+    -----
+    Call :meth:`push` once per block, in run order, with the observations the processor
+    returned for it; then :meth:`finish` with the processor's final observations. Each call
+    returns the rows now complete, sorted by scan and wire.
+    """
+
+    def __init__(
+        self,
+        geometry: VehicleGeometry,
+        *,
+        window_m: float = DEFAULT_WINDOW_M,
+        history_m: float = VEHICLE_HISTORY_M,
+    ) -> None:
+        self.geometry = geometry
+        self.window_m = window_m
+        self.history_m = history_m
+        self._first_scan = 0  # run index of the first scan kept
+        self._next_scan = 0
+        self._position = np.zeros(0)
+        self._sensors = np.zeros((3, 0))  # left, right, lateral [mm]
+        self._fault = np.zeros(0, dtype=bool)
+        self._pending: dict[int, TrackSamples] = {}  # per wire: rows not given out yet
+        self._context: dict[int, TrackSamples] = {}  # per wire: the last rows given out
+
+    def push(self, block: ScanBlock, observations: WireObservations) -> TrackSamples:
+        """Add one block's scans and the observations released with it."""
+        if block.first_scan != self._next_scan:
+            raise ValueError(f"block at scan {block.first_scan}, expected {self._next_scan}")
+        vehicle = block.vehicle
+        n = block.scans
+        sensors = np.stack([vehicle.left_mm, vehicle.right_mm, vehicle.lateral_mm])
+        if sensors.shape != (3, n):
+            raise ValueError(f"block at scan {block.first_scan}: vehicle samples are not [{n}]")
+        fault = vehicle.fault if vehicle.fault.shape == (n,) else np.zeros(n, dtype=bool)
+        self._position = np.concatenate([self._position, block.position_m])
+        self._sensors = np.concatenate([self._sensors, sensors], axis=1)
+        self._fault = np.concatenate([self._fault, fault | ~np.isfinite(sensors).all(axis=0)])
+        self._next_scan += n
+        self._add(observations)
+        if n:
+            keep = np.searchsorted(self._position, block.position_m[-1] - self.history_m)
+            self._first_scan += int(keep)
+            self._position = self._position[keep:]
+            self._sensors = self._sensors[:, keep:]
+            self._fault = self._fault[keep:]
+        return self._release(final=False)
+
+    def finish(self, observations: WireObservations) -> TrackSamples:
+        """Add the processor's last observations and give out every row still held."""
+        self._add(observations)
+        return self._release(final=True)
+
+    def _add(self, observations: WireObservations) -> None:
+        if observations.rows == 0:
+            return
+        index = observations.scan - self._first_scan
+        if index.min() < 0 or observations.scan.max() >= self._next_scan:
+            raise ValueError(
+                f"observation of scan {int(observations.scan.min())} outside the scans kept "
+                f"({self._first_scan}-{self._next_scan - 1}): a processor must release a scan "
+                f"within {self.history_m:g} m"
+            )
+        left, right, lateral = self._sensors[:, index]
+        stagger, height = roof_to_track(
+            observations.x_roof_mm, observations.z_roof_mm, left, right, lateral, self.geometry
+        )
+        rows = TrackSamples(
+            scan=observations.scan.astype(np.int64),
+            position_m=self._position[index],
+            wire=observations.wire.astype(np.int64),
+            height_mm=height,
+            stagger_mm=stagger,
+            wear_width_mm=np.asarray(observations.wear_width_mm, dtype=np.float64),
+            cameras=observations.cameras.astype(np.int64),
+            vehicle_fault=self._fault[index],
+        )
+        for wire in np.unique(rows.wire):  # a loop per wire, not per row
+            mine = rows.take(rows.wire == wire)
+            held = self._pending.get(int(wire))
+            self._pending[int(wire)] = mine if held is None else held.concatenate([held, mine])
+
+    def _release(self, *, final: bool) -> TrackSamples:
+        out = []
+        for wire in list(self._pending):
+            pending = self._pending[wire]
+            if pending.rows == 0:
+                continue
+            frontier = float(np.max(pending.position_m))
+            ready = (
+                np.ones(pending.rows, dtype=bool)
+                if final
+                else pending.position_m <= frontier - self.window_m
+            )
+            if not ready.any():
+                continue
+            context = self._context.get(wire, TrackSamples.empty())
+            both = TrackSamples.concatenate([context, pending])
+            theta = stagger_angle_rad(both.position_m, both.stagger_mm, self.window_m)
+            theta_ready = theta[context.rows :][ready]
+            done = pending.take(ready)
+            done = TrackSamples(
+                **{
+                    **{f.name: getattr(done, f.name) for f in fields(done)},
+                    "wear_width_mm": corrected_wear_width_mm(done.wear_width_mm, theta_ready),
+                }
+            )
+            out.append(done)
+            self._pending[wire] = pending.take(~ready)
+            given = TrackSamples.concatenate([context, done])
+            last = float(np.max(done.position_m))
+            self._context[wire] = given.take(given.position_m >= last - self.window_m)
+        released = TrackSamples.concatenate(out)
+        order = np.lexsort((released.wire, released.scan))
+        return released.take(order)

@@ -1,0 +1,165 @@
+"""The mast register: CSV (FORMATS.md), one row per mast, per line and track.
+
+Columns ``line,track,mast,chainage_m,wire_type`` and optionally ``design_stagger_mm``; extra
+columns are ignored. A span runs from one mast to the next by chainage; its wire type is that
+of the mast at its start. Every problem is a one-line ``FormatError`` naming the file, the
+row (its line number in the file) and the field.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from catenary.domain import FloatArray
+from catenary.errors import FormatError, UserError
+
+__all__ = ["REQUIRED_COLUMNS", "MastRegister", "TrackRegister", "read_register"]
+
+REQUIRED_COLUMNS = ("line", "track", "mast", "chainage_m", "wire_type")
+
+
+@dataclass(frozen=True)
+class TrackRegister:
+    """The masts of one line and track, sorted by chainage (each ``(k,)``)."""
+
+    line: str
+    track: str
+    mast: tuple[str, ...]
+    chainage_m: FloatArray
+    wire_type: tuple[str, ...]
+    design_stagger_mm: FloatArray  # NaN where not given
+
+    @property
+    def masts(self) -> int:
+        return len(self.mast)
+
+    def span_name(self, span: int) -> tuple[str, str]:
+        """The masts at the start and end of span ``span`` (from mast ``span`` to the next)."""
+        return self.mast[span], self.mast[span + 1]
+
+
+@dataclass(frozen=True)
+class MastRegister:
+    """A register file's masts by ``(line, track)``."""
+
+    path: Path
+    tracks: dict[tuple[str, str], TrackRegister]
+
+    def track(self, line: str, track: str) -> TrackRegister:
+        """The masts of one line and track; ``UserError`` when the register has none."""
+        found = self.tracks.get((line, track))
+        if found is None or found.masts < 2:
+            known = ", ".join(f"{a}/{b}" for a, b in sorted(self.tracks)) or "none"
+            raise UserError(
+                f"{self.path}: no masts for line {line!r} track {track!r} "
+                f"(two at least needed; the register has line/track: {known})"
+            )
+        return found
+
+
+def _number(path: Path, row: int, field: str, text: str, *, optional: bool = False) -> float:
+    if optional and text.strip() == "":
+        return math.nan
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise FormatError(path, f"row {row}: {field} = {text!r} is not a finite number")
+    return value
+
+
+def read_register(path: str | Path, wire_types: Iterable[str] | None = None) -> MastRegister:
+    """Read a mast register CSV.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file (UTF-8, a header row).
+    wire_types : iterable of str or None
+        Known wire type names; a mast naming another is refused. None: not checked.
+
+    Raises
+    ------
+    FormatError
+        A missing column, an empty or non-numeric field, a mast code given twice for one
+        track, two masts at the same chainage, an unknown wire type.
+    """
+    file = Path(path)
+    known = None if wire_types is None else set(wire_types)
+    try:
+        with file.open(newline="", encoding="utf-8-sig") as handle:
+            reader = csv.DictReader(handle)
+            columns = [c.strip() for c in reader.fieldnames or []]
+            missing = [c for c in REQUIRED_COLUMNS if c not in columns]
+            if missing:
+                raise FormatError(
+                    file,
+                    f"no column {missing[0]!r} (a mast register has columns "
+                    f"{','.join(REQUIRED_COLUMNS)}[,design_stagger_mm])",
+                )
+            reader.fieldnames = columns
+            rows: dict[tuple[str, str], list[tuple[str, float, str, float]]] = {}
+            for row in reader:
+                number = reader.line_num
+                values = {k: (v or "").strip() for k, v in row.items() if k is not None}
+                for field in ("line", "track", "mast", "wire_type"):
+                    if not values.get(field):
+                        raise FormatError(file, f"row {number}: {field} is empty")
+                if known is not None and values["wire_type"] not in known:
+                    raise FormatError(
+                        file,
+                        f"row {number}: wire_type = {values['wire_type']!r} is not a known "
+                        f"wire type (catenary wire-types lists them)",
+                    )
+                chainage = _number(file, number, "chainage_m", values["chainage_m"])
+                stagger = _number(
+                    file,
+                    number,
+                    "design_stagger_mm",
+                    values.get("design_stagger_mm", ""),
+                    optional=True,
+                )
+                key = (values["line"], values["track"])
+                rows.setdefault(key, []).append(
+                    (values["mast"], chainage, values["wire_type"], stagger)
+                )
+    except FileNotFoundError:
+        raise UserError(f"{file}: no such file") from None
+    except UnicodeDecodeError as exc:
+        raise FormatError(file, f"not UTF-8 text ({exc.reason})") from None
+    except csv.Error as exc:
+        raise FormatError(file, f"not valid CSV: {exc}") from None
+    except OSError as exc:
+        raise UserError(f"{file}: cannot read ({exc.strerror or exc})") from None
+    if not rows:
+        raise FormatError(file, "no masts")
+    tracks = {}
+    for (line, track), masts in rows.items():
+        masts.sort(key=lambda m: m[1])
+        codes = [m[0] for m in masts]
+        if len(set(codes)) != len(codes):
+            twice = next(c for c in codes if codes.count(c) > 1)
+            raise FormatError(file, f"mast {twice!r} of line {line!r} track {track!r} twice")
+        chainages = np.array([m[1] for m in masts])
+        same = np.flatnonzero(np.diff(chainages) <= 0.0)
+        if same.size:
+            a, b = codes[same[0]], codes[same[0] + 1]
+            raise FormatError(
+                file, f"masts {a!r} and {b!r} of line {line!r} track {track!r} at one chainage"
+            )
+        tracks[(line, track)] = TrackRegister(
+            line=line,
+            track=track,
+            mast=tuple(codes),
+            chainage_m=chainages,
+            wire_type=tuple(m[2] for m in masts),
+            design_stagger_mm=np.array([m[3] for m in masts]),
+        )
+    return MastRegister(path=file, tracks=tracks)

@@ -1,0 +1,185 @@
+"""A run's full-resolution wear samples: one Parquet file per run (``catenary-samples`` v1).
+
+Columns: the ``samples`` export columns of FORMATS.md, in its order, then the project's own
+(README, "File formats"):
+
+- ``span`` (int32): the span's number as stored in the database, -1 outside every span;
+- ``vehicle_fault`` (bool): a displacement sensor sample of the scan was faulty or missing,
+  so height and stagger are not trusted (such samples are left out of the span statistics).
+
+The file's key-value metadata holds ``format = catenary-samples``, ``format_version = 1``.
+Rows are written in blocks as the run is processed (each block sorted by scan and wire) and
+read back in row groups, so neither side holds a whole run in memory.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.csv as pa_csv
+import pyarrow.parquet as pq
+
+from catenary.errors import FormatError, UserError
+
+__all__ = [
+    "EXPORT_COLUMNS",
+    "SAMPLES_SCHEMA",
+    "SampleWriter",
+    "export_table",
+    "read_sample_batches",
+]
+
+FORMAT = "catenary-samples"
+FORMAT_VERSION = 1
+
+EXPORT_COLUMNS = (
+    "scan",
+    "position_m",
+    "chainage_m",
+    "wire",
+    "height_mm",
+    "stagger_mm",
+    "wear_width_mm",
+    "residual_thickness_mm",
+    "cameras",
+)
+"""The ``samples`` export's columns (FORMATS.md), in order."""
+
+SAMPLES_SCHEMA = pa.schema(
+    [
+        ("scan", pa.int64()),
+        ("position_m", pa.float64()),
+        ("chainage_m", pa.float64()),
+        ("wire", pa.int32()),
+        ("height_mm", pa.float64()),
+        ("stagger_mm", pa.float64()),
+        ("wear_width_mm", pa.float64()),
+        ("residual_thickness_mm", pa.float64()),
+        ("cameras", pa.int16()),
+        ("span", pa.int32()),
+        ("vehicle_fault", pa.bool_()),
+    ],
+    metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)},
+)
+
+ROW_GROUP_ROWS = 65_536
+
+
+class SampleWriter:
+    """Writes sample rows to a Parquet file in row groups of ``ROW_GROUP_ROWS``.
+
+    ``schema`` is :data:`SAMPLES_SCHEMA` unless given (the pipeline's intermediate file has
+    its own). Use as a context manager; :meth:`abort` removes the file.
+    """
+
+    def __init__(self, path: Path, schema: pa.Schema = SAMPLES_SCHEMA) -> None:
+        self.path = path
+        self.schema = schema
+        self.rows = 0
+        self._parts: list[pa.Table] = []
+        self._buffered = 0
+        self._writer = pq.ParquetWriter(path, schema)
+
+    def write(self, columns: Mapping[str, Any]) -> None:
+        """Append rows: every column of the schema as an array ``(m,)``."""
+        table = pa.table({f.name: columns[f.name] for f in self.schema}, schema=self.schema)
+        if table.num_rows == 0:
+            return
+        self._parts.append(table)
+        self._buffered += table.num_rows
+        self.rows += table.num_rows
+        if self._buffered >= ROW_GROUP_ROWS:
+            self._flush()
+
+    def _flush(self) -> None:
+        if self._parts:
+            self._writer.write_table(pa.concat_tables(self._parts), ROW_GROUP_ROWS)
+            self._parts, self._buffered = [], 0
+
+    def close(self) -> None:
+        self._flush()
+        self._writer.close()
+
+    def abort(self) -> None:
+        self._writer.close()
+        self.path.unlink(missing_ok=True)
+
+    def __enter__(self) -> SampleWriter:
+        return self
+
+    def __exit__(self, kind: object, value: object, traceback: object) -> None:
+        if kind is None:
+            self.close()
+        else:
+            self.abort()
+
+
+def _open(path: Path) -> pq.ParquetFile:
+    try:
+        return pq.ParquetFile(path)
+    except FileNotFoundError:
+        raise UserError(f"{path}: samples file not found") from None
+    except (pa.ArrowInvalid, OSError) as exc:
+        raise FormatError(path, f"not a readable Parquet file ({exc})") from None
+
+
+def read_sample_batches(
+    path: Path, columns: list[str] | None = None
+) -> Iterator[dict[str, np.ndarray[Any, Any]]]:
+    """The samples of a file, row group by row group, as NumPy columns."""
+    handle = _open(path)
+    missing = [c for c in columns or [] if c not in handle.schema_arrow.names]
+    if missing:
+        raise FormatError(path, f"no column {missing[0]!r}")
+    for group in range(handle.num_row_groups):
+        table = handle.read_row_group(group, columns=columns)
+        yield {name: table.column(name).to_numpy() for name in table.column_names}
+
+
+def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -> int:
+    """Write tables to ``output`` as CSV or Parquet (by its suffix); returns the rows written.
+
+    Written to a temporary file beside ``output`` and renamed at the end: an interrupted
+    export leaves no partial file.
+    """
+    suffix = output.suffix.lower()
+    if suffix not in (".csv", ".parquet"):
+        raise UserError(f"{output}: the output's suffix must be .csv or .parquet")
+    partial = output.with_name(f".{output.name}.partial")
+    rows = 0
+    try:
+        if suffix == ".parquet":
+            with pq.ParquetWriter(partial, schema) as writer:
+                for table in batches:
+                    writer.write_table(table)
+                    rows += table.num_rows
+        else:
+            with pa_csv.CSVWriter(partial, schema) as writer:
+                for table in batches:
+                    writer.write_table(table)
+                    rows += table.num_rows
+        partial.replace(output)
+    except BaseException:
+        partial.unlink(missing_ok=True)
+        raise
+    return rows
+
+
+def sample_tables(path: Path, columns: tuple[str, ...] = EXPORT_COLUMNS) -> Iterator[pa.Table]:
+    """The samples file's row groups as tables of ``columns``."""
+    handle = _open(path)
+    missing = [c for c in columns if c not in handle.schema_arrow.names]
+    if missing:
+        raise FormatError(path, f"no column {missing[0]!r}")
+    for group in range(handle.num_row_groups):
+        yield handle.read_row_group(group, columns=list(columns))
+
+
+def export_schema(path: Path, columns: tuple[str, ...] = EXPORT_COLUMNS) -> pa.Schema:
+    """The schema of ``columns`` of a samples file."""
+    schema = _open(path).schema_arrow
+    return pa.schema([schema.field(c) for c in columns])

@@ -1,0 +1,99 @@
+"""Runs in the database: the register's lines, tracks and masts, finding and replacing runs."""
+
+from __future__ import annotations
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from catenary.errors import UserError
+from catenary.register import TrackRegister
+from catenary.storage.models import Line, Mast, RigCalibration, Run, Track
+
+__all__ = ["find_run", "find_stored_run", "register_track", "track_masts"]
+
+
+def register_track(session: Session, line_code: str, track_code: str) -> tuple[Line, Track]:
+    """The line and track with these codes, added if new."""
+    line = session.scalars(select(Line).where(Line.code == line_code)).one_or_none()
+    if line is None:
+        line = Line(code=line_code)
+        session.add(line)
+        session.flush()
+    track = session.scalars(
+        select(Track).where(Track.line_id == line.id, Track.code == track_code)
+    ).one_or_none()
+    if track is None:
+        track = Track(line=line, code=track_code)
+        session.add(track)
+        session.flush()
+    return line, track
+
+
+def track_masts(session: Session, track: Track, register: TrackRegister) -> int:
+    """Bring the track's masts in line with the register; returns how many changed.
+
+    The register is the authority: a new mast is added, a mast whose chainage, wire type or
+    design stagger differ is updated; masts not in this register are kept (a register file
+    may hold a part of the track). Span measurements keep their own mast codes and
+    chainages, so earlier runs are unchanged.
+    """
+    stored = {m.code: m for m in session.scalars(select(Mast).where(Mast.track_id == track.id))}
+    changed = 0
+    for code, chainage, wire_type, stagger in zip(
+        register.mast,
+        register.chainage_m.tolist(),
+        register.wire_type,
+        register.design_stagger_mm.tolist(),
+        strict=True,
+    ):
+        design = None if stagger != stagger else stagger  # NaN: not given
+        mast = stored.get(code)
+        if mast is None:
+            session.add(
+                Mast(
+                    track=track,
+                    code=code,
+                    chainage_m=chainage,
+                    wire_type=wire_type,
+                    design_stagger_mm=design,
+                )
+            )
+            changed += 1
+        elif (mast.chainage_m, mast.wire_type, mast.design_stagger_mm) != (
+            chainage,
+            wire_type,
+            design,
+        ):
+            mast.chainage_m, mast.wire_type, mast.design_stagger_mm = chainage, wire_type, design
+            changed += 1
+    session.flush()
+    return changed
+
+
+def find_stored_run(
+    session: Session, source_sha256: str, vehicle: str, rig_sha256: str
+) -> Run | None:
+    """The run already stored from this file content with this rig calibration content."""
+    return session.scalars(
+        select(Run)
+        .join(RigCalibration, Run.rig_calibration_id == RigCalibration.id)
+        .where(Run.source_sha256 == source_sha256, RigCalibration.sha256 == rig_sha256)
+        .where(RigCalibration.vehicle.has(name=vehicle))
+    ).first()
+
+
+def find_run(session: Session, reference: str) -> Run:
+    """The run with id ``reference``, or the last processed with ``latest``."""
+    if reference == "latest":
+        run = session.scalars(select(Run).order_by(Run.id.desc()).limit(1)).first()
+        if run is None:
+            raise UserError("no run in the database yet: catenary process RUN.h5 stores one")
+        return run
+    try:
+        number = int(reference)
+    except ValueError:
+        raise UserError(f"run {reference!r}: give a run id (a number) or 'latest'") from None
+    run = session.get(Run, number)
+    if run is None:
+        raise UserError(f"no run {number} in the database")
+    return run

@@ -1,0 +1,75 @@
+"""The mast register CSV: masts per line and track, and one-line errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from catenary.errors import FormatError, UserError
+from catenary.register import read_register
+
+WIRES = {"CTA120", "AC-100"}
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "masts.csv"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_masts_sorted_by_chainage_per_line_and_track(tmp_path: Path):
+    path = write(
+        tmp_path,
+        "line,track,mast,chainage_m,wire_type,design_stagger_mm,note\n"
+        "L1,1,M2,1050.5,CTA120,-200,x\n"
+        "L1,1,M1,1000.0,CTA120,,\n"
+        "L1,2,N1,1000.0,AC-100,,\n",
+    )
+    register = read_register(path, WIRES)
+    track = register.track("L1", "1")
+    assert track.mast == ("M1", "M2") and track.span_name(0) == ("M1", "M2")
+    np.testing.assert_allclose(track.chainage_m, [1000.0, 1050.5])
+    assert np.isnan(track.design_stagger_mm[0]) and track.design_stagger_mm[1] == -200.0
+    with pytest.raises(UserError, match="no masts for line 'L1' track '2'"):
+        register.track("L1", "2")  # one mast is no span
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("line,track,mast,wire_type\nL1,1,M1,CTA120\n", "no column 'chainage_m'"),
+        (
+            "line,track,mast,chainage_m,wire_type\nL1,1,M1,12.x,CTA120\n",
+            "row 2: chainage_m = '12.x' is not a finite number",
+        ),
+        ("line,track,mast,chainage_m,wire_type\nL1,1,M1,nan,CTA120\n", "row 2: chainage_m"),
+        ("line,track,mast,chainage_m,wire_type\nL1,1,,10,CTA120\n", "row 2: mast is empty"),
+        (
+            "line,track,mast,chainage_m,wire_type\nL1,1,M1,10,CTA999\n",
+            "row 2: wire_type = 'CTA999' is not a known wire type",
+        ),
+        (
+            "line,track,mast,chainage_m,wire_type\nL1,1,M1,10,CTA120\nL1,1,M1,60,CTA120\n",
+            "mast 'M1' of line 'L1' track '1' twice",
+        ),
+        (
+            "line,track,mast,chainage_m,wire_type\nL1,1,M1,10,CTA120\nL1,1,M2,10,CTA120\n",
+            "masts 'M1' and 'M2' of line 'L1' track '1' at one chainage",
+        ),
+        ("line,track,mast,chainage_m,wire_type\n", "no masts"),
+    ],
+)
+def test_bad_registers_are_refused_naming_the_file_row_and_field(
+    tmp_path: Path, text: str, message: str
+):
+    path = write(tmp_path, text)
+    with pytest.raises(FormatError, match=message) as error:
+        read_register(path, WIRES)
+    assert str(error.value).startswith(str(path)) and "\n" not in str(error.value)
+
+
+def test_a_missing_register(tmp_path: Path):
+    with pytest.raises(UserError, match="no such file"):
+        read_register(tmp_path / "none.csv")
