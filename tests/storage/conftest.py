@@ -1,22 +1,13 @@
-"""Databases for the storage tests: a SQLite file, and PostgreSQL when CI gives one.
-
-Each PostgreSQL test gets a schema of its own (``search_path`` set in the URL), dropped with
-everything in it, ``alembic_version`` included, when the test ends: tests never see each
-other's tables, nor leave any for other suites.
-"""
+"""Engines and row builders for the storage tests (``database_url``: ``tests/conftest.py``)."""
 
 from __future__ import annotations
 
-import os
-import uuid
 from collections.abc import Iterator
 from datetime import UTC, datetime
-from pathlib import Path
 from typing import Any
 
 import pytest
-from sqlalchemy import Engine, create_engine
-from sqlalchemy.engine import make_url
+from sqlalchemy import Engine
 from sqlalchemy.orm import Session
 
 from catenary.storage import migrate
@@ -31,34 +22,6 @@ from catenary.storage.models import (
     Track,
     Vehicle,
 )
-
-POSTGRES_ENV = "CATENARY_TEST_DATABASE_URL"
-
-
-@pytest.fixture(
-    params=["sqlite", pytest.param("postgresql", marks=pytest.mark.postgres)],
-)
-def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str]:
-    """The URL of an empty database, on each backend."""
-    if request.param == "sqlite":
-        yield f"sqlite:///{tmp_path / 'data' / 'catenary.sqlite'}"
-        return
-    base = os.environ.get(POSTGRES_ENV)
-    if not base:
-        pytest.skip(f"{POSTGRES_ENV} is not set")
-    schema = f"catenary_test_{uuid.uuid4().hex[:16]}"
-    admin = create_engine(base)
-    try:
-        with admin.begin() as connection:
-            connection.exec_driver_sql(f'CREATE SCHEMA "{schema}"')
-        url = make_url(base).update_query_dict({"options": f"-csearch_path={schema}"})
-        yield url.render_as_string(hide_password=False)
-    finally:
-        with admin.begin() as connection:
-            # a connection a test left in a transaction fails the test instead of hanging it
-            connection.exec_driver_sql("SET LOCAL lock_timeout = '20s'")
-            connection.exec_driver_sql(f'DROP SCHEMA IF EXISTS "{schema}" CASCADE')
-        admin.dispose()
 
 
 @pytest.fixture
