@@ -28,7 +28,20 @@ __all__ = ["simulate"]
     help="Simulated rig (TOML: vehicle, cameras, lamps).",
 )
 @click.option("--length-m", type=float, default=300.0, show_default=True, help="Run length.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Scene, motion and noise.")
+@click.option(
+    "--seed",
+    type=int,
+    default=0,
+    show_default=True,
+    help="Motion, encoder errors and noise; the scene too, without --scene-seed.",
+)
+@click.option(
+    "--scene-seed",
+    type=int,
+    default=None,
+    help="Scene alone (masts, wires, wear); default: --seed. One scene seed with different "
+    "seeds: the same line under different runs.",
+)
 @click.option(
     "--lighting",
     type=click.Choice(["night", "day-filter", "day-white"]),
@@ -65,6 +78,7 @@ def simulate(
     rig_path: Path,
     length_m: float,
     seed: int,
+    scene_seed: int | None,
     lighting: str,
     overlap: bool,
     sun_blind: str | None,
@@ -85,6 +99,7 @@ def simulate(
         "rig": rig_path,
         "length_m": length_m,
         "seed": seed,
+        "scene_seed": scene_seed,
         "lighting": lighting,
         "overlap": overlap,
         "sun_blind": sun_blind,

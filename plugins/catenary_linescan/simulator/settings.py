@@ -6,7 +6,13 @@ Keys of the settings mapping (all optional; units in the names):
 ``rig``                    rig TOML path (default: ``calibration/demo-rig.sim.toml`` of the
                            source tree) or a :class:`~.rig.SimRig`
 ``length_m``               true length of the run (300)
-``seed``                   integer seed of the scene, motion, sky and noise (0)
+``seed``                   integer seed of the motion (speed, body pose, encoder errors), sky
+                           and noise, and of the scene unless ``scene_seed`` is given (0)
+``scene_seed``             integer seed of the scene alone (masts, wires, fittings, wear); none:
+                           ``seed``. Runs with one ``scene_seed`` (and the same section:
+                           ``length_m``, ``start_chainage_m``, ``overlap``, ``curve_*``,
+                           ``wire_type``, rig roof height) and different ``seed`` see the same
+                           line with different motion and noise (repeatability)
 ``lighting``               ``night``, ``day-filter`` or ``day-white`` (``night``)
 ``overlap``                lay out an overlap (two contact wires) mid-run (true)
 ``sun_blind``              name of a camera blinded by the sun over ``sun_blind_span`` (none)
@@ -65,6 +71,7 @@ class SimulationSettings:
     rig: SimRig
     length_m: float = 300.0
     seed: int = 0
+    scene_seed: int | None = None
     lighting: str = "night"
     overlap: bool = True
     sun_blind: str | None = None
@@ -91,6 +98,11 @@ class SimulationSettings:
     subsamples: int = 2
     chunk_scans: int = 256
     started_at: str | None = None
+
+    @property
+    def scene_rng_seed(self) -> int:
+        """The seed the scene is generated from: ``scene_seed``, or ``seed`` without it."""
+        return self.seed if self.scene_seed is None else self.scene_seed
 
     def scene_params(self) -> SceneParams:
         return SceneParams(
@@ -120,10 +132,13 @@ class SimulationSettings:
         )
 
     def as_dict(self) -> dict[str, Any]:
-        """Plain values (the rig by name) for the ground truth's record."""
+        """Plain values (the rig by name) for the ground truth's record; ``scene_seed`` only
+        when given (so that a record without it reads as before it existed)."""
         out: dict[str, Any] = {}
         for f in fields(self):
             value = getattr(self, f.name)
+            if f.name == "scene_seed" and value is None:
+                continue
             out[f.name] = value.name if isinstance(value, SimRig) else value
         return out
 
@@ -140,8 +155,9 @@ _FLOATS = {
     "sensor_noise_mm",
 }
 _OPTIONAL_FLOATS = {"curve_radius_m", "encoder_scale_error", "start_chainage_error_m"}
-_INTS = {"seed", "curve_direction", "subsamples", "chunk_scans"}
+_INTS = {"seed", "scene_seed", "curve_direction", "subsamples", "chunk_scans"}
 _BOOLS = {"overlap", "noise", "blur"}
+_NULLABLE = _OPTIONAL_FLOATS | {"scene_seed", "sun_blind", "started_at", "rig"}
 _STRINGS = {"line", "track", "wire_type", "direction", "lighting", "shot_noise"}
 
 
@@ -157,7 +173,7 @@ def parse_settings(settings: Mapping[str, Any]) -> SimulationSettings:
         raise UserError(f"unknown simulation setting {unknown[0]!r}")
     values: dict[str, Any] = {}
     for key, value in settings.items():
-        if value is None and key in _OPTIONAL_FLOATS | {"sun_blind", "started_at", "rig"}:
+        if value is None and key in _NULLABLE:
             continue
         if key in _FLOATS | _OPTIONAL_FLOATS:
             if isinstance(value, bool) or not isinstance(value, int | float):
@@ -201,6 +217,8 @@ def parse_settings(settings: Mapping[str, Any]) -> SimulationSettings:
         raise _fail("shot_noise", parsed.shot_noise, " or ".join(SHOT_NOISE))
     if parsed.seed < 0:
         raise _fail("seed", parsed.seed, "a non-negative integer")
+    if parsed.scene_seed is not None and parsed.scene_seed < 0:
+        raise _fail("scene_seed", parsed.scene_seed, "a non-negative integer")
     if not 1 <= parsed.subsamples <= 64:
         raise _fail("subsamples", parsed.subsamples, "1-64")
     if not 1 <= parsed.chunk_scans <= 65536:

@@ -117,7 +117,8 @@ class Simulation:
         self.settings = settings
         self.rig = settings.rig
         self.geometry = self.rig.vehicle
-        self.scene: Scene = generate_scene(settings.scene_params(), settings.seed)
+        # the scene from its own seed when given: the same line under different motion and noise
+        self.scene: Scene = generate_scene(settings.scene_params(), settings.scene_rng_seed)
         self.motion = Motion(
             settings.motion_params(),
             settings.seed,
