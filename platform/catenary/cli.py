@@ -24,6 +24,7 @@ from catenary.limits import (
 )
 from catenary.plugins import PluginRegistry
 from catenary.record import record
+from catenary.run_commands import compare, export, process
 from catenary.storage.commands import db
 from catenary.wiretype import ProfileRangeError, WireType
 
@@ -255,6 +256,9 @@ def wire_types_command(
 
 cli.add_command(db)
 cli.add_command(record)
+cli.add_command(process)
+cli.add_command(export)
+cli.add_command(compare)
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -44,9 +44,17 @@ class VehicleStream(Protocol):
 
 
 class BlockProcessor(Protocol):
-    """Turns blocks of scans into contact wire observations in the roof frame."""
+    """Turns blocks of scans into contact wire observations in the roof frame.
+
+    ``process(block)`` is called for every block in run order and returns the
+    ``WireObservations`` decided so far (of this block's scans or earlier ones: a processor
+    may hold rows back, for a few metres of track at most, until its tracking decides them);
+    ``finish()`` is called once after the last block and returns the rest.
+    """
 
     def process(self, block: ScanBlock) -> Any: ...
+
+    def finish(self) -> Any: ...
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from catenary.chainage import span_index
 from catenary.domain import FloatArray
 from catenary.register import TrackRegister
 
@@ -73,10 +74,7 @@ class SpanLayout:
 
     def index(self, chainage_m: ArrayLike) -> IntArray:
         """Index (into this layout) of the span of each chainage, ``(m,)``; -1 outside all."""
-        c = np.asarray(chainage_m, dtype=np.float64)
-        i = np.searchsorted(self.boundaries_m, c, side="right") - 1
-        inside = (i >= 0) & (i < self.spans) & np.isfinite(c)
-        return np.where(inside, i, -1).astype(np.int64)
+        return span_index(chainage_m, self.boundaries_m).astype(np.int64)
 
 
 @dataclass(frozen=True)

@@ -1,10 +1,10 @@
 """``catenary demo``: the main job on simulated data, for a newcomer.
 
 Simulates a few hundred metres of line with an overlap on the demo rig (run file, ground
-truth, mast register, calibration captures), calibrates the rig from the captures, and
-registers the vehicle and its rig calibration in the database (the embedded SQLite default
-unless ``--db`` says otherwise), migrating it first. Processing the run into per-span wear
-joins the demo with ``catenary process``.
+truth, mast register, calibration captures), calibrates the rig from the captures, migrates
+the database (the embedded SQLite default unless ``--db`` says otherwise), processes the run
+into it as ``catenary process`` does (aligned to the mast register; the demo run again is a
+new recording, so a new run), and writes the run's spans as a CSV report beside the files.
 """
 
 from __future__ import annotations
@@ -15,11 +15,11 @@ from pathlib import Path
 import click
 
 from catenary.cli import app_of
+from catenary.process import ProcessRequest, process_run
+from catenary.run_commands import echo_summary, export
 from catenary.storage import migrate
-from catenary.storage.database import mask_url, open_database, session_scope
-from catenary.storage.rigs import register_rig_calibration
+from catenary.storage.database import mask_url, open_database
 from catenary_linescan.calibrate import calibrate
-from catenary_linescan.rig import read_rig
 from catenary_linescan.simulator.command import simulate
 from catenary_linescan.simulator.settings import DEMO_RIG_PATH
 
@@ -42,7 +42,7 @@ def demo(ctx: click.Context, out: Path, length_m: float, seed: int) -> None:
     out.mkdir(parents=True, exist_ok=True)
     run, captures, rig_path = out / "run.h5", out / "captures.h5", out / "rig.toml"
 
-    click.echo(f"1/3 simulating {length_m:g} m of line with an overlap on the demo rig")
+    click.echo(f"1/4 simulating {length_m:g} m of line with an overlap on the demo rig")
     ctx.invoke(
         simulate,
         out=run,
@@ -61,7 +61,7 @@ def demo(ctx: click.Context, out: Path, length_m: float, seed: int) -> None:
         overwrite=True,
     )
 
-    click.echo("2/3 calibrating the rig from its captures")
+    click.echo("2/4 calibrating the rig from its captures")
     ctx.invoke(
         calibrate,
         captures=captures,
@@ -72,20 +72,25 @@ def demo(ctx: click.Context, out: Path, length_m: float, seed: int) -> None:
         pixels=None,
     )
 
-    click.echo("3/3 storing the vehicle and its rig calibration")
-    rig = read_rig(rig_path)
+    click.echo("3/4 processing the run into the database")
     with open_database(settings.database_url, migrated=False) as engine:
         migrate.upgrade(engine)
-        with session_scope(engine) as session:
-            stored = register_rig_calibration(
-                session, rig.vehicle, rig_path.stem, rig_path.read_text(encoding="utf-8")
-            )
-            version = stored.version
-    where = mask_url(settings.database_url)
+    masts = run.with_suffix(".masts.csv")
+    request = ProcessRequest(run_path=run, rig_path=rig_path, register_path=masts)
+    result = process_run(request, settings, app_of(ctx).registry)
+    echo_summary(result)
+
+    click.echo("4/4 writing the report")
+    report = out / "spans.csv"
+    ctx.invoke(
+        export, run_reference=str(result.run_id), what="spans", output=report, database_url=None
+    )
     click.echo("")
     click.echo(f"run file          {run} (truth: {run.with_suffix('.truth.h5').name})")
-    click.echo(f"mast register     {run.with_suffix('.masts.csv')}")
+    click.echo(f"mast register     {masts}")
     click.echo(f"captures          {captures}")
-    click.echo(f"rig calibration   {rig_path} (version {version} of {rig.vehicle.name!r})")
-    click.echo(f"database          {where}")
+    click.echo(f"rig calibration   {rig_path}")
+    click.echo(f"database          {mask_url(settings.database_url)} (run {result.run_id})")
+    click.echo(f"samples           {result.samples_path}")
+    click.echo(f"report            {report} (one row per span and wire)")
     click.echo(f"done in {time.monotonic() - started:.0f} s")

@@ -10,11 +10,11 @@ from sqlalchemy.orm import Session
 
 from catenary.cli import cli
 from catenary.runfile import open_run
-from catenary.storage.models import RigCalibration
+from catenary.storage.models import RigCalibration, Run
 from catenary_linescan.rig import read_rig
 
 
-def test_demo_simulates_calibrates_and_stores(tmp_path: Path) -> None:
+def test_demo_simulates_calibrates_processes_and_reports(tmp_path: Path) -> None:
     database = tmp_path / "demo.sqlite"
     out = tmp_path / "demo"
     args = ["--db", f"sqlite:///{database}", "demo", "--out", str(out), "--length-m", "40"]
@@ -28,4 +28,13 @@ def test_demo_simulates_calibrates_and_stores(tmp_path: Path) -> None:
         stored = session.scalars(select(RigCalibration)).one()
         assert stored.vehicle.name == "demo-rig"
         assert stored.content_toml == (out / "rig.toml").read_text()
-    assert f"database          sqlite:///{database}" in result.output
+        run = session.scalars(select(Run)).one()
+        assert run.rig_calibration_id == stored.id and run.status == "complete"
+        spans = len(run.span_measurements)
+    assert spans >= 1
+    report = (out / "spans.csv").read_text().splitlines()
+    assert report[0].startswith('"span","mast_from"') and len(report) == spans + 1
+    assert f"database          sqlite:///{database} (run 1)" in result.output
+    again = CliRunner().invoke(cli, args)  # a new recording (its own completion time): a new run
+    assert again.exit_code == 0, again.output
+    assert "stored as run 2" in again.output

@@ -1,0 +1,476 @@
+"""``catenary process``: a recorded run into per-span wear in the database (the main job).
+
+1. **Check** everything a user gives before anything is written: the run file's layout, the
+   rig calibration (read by the processor), the mast register and its wire types, the wire
+   type, the line and track, the database's migration; a run already stored from the same
+   file content and rig calibration is said so and left alone (``--replace`` processes it
+   again and replaces it).
+2. **Measure** (pass 1): the run streams in blocks through the processor (a plugin: the
+   ``linescan-stereo`` one unless told otherwise) and the measurement chain
+   (:mod:`catenary.pipeline`: vehicle compensation, stagger-angle correction) into an
+   intermediate Parquet file; the stagger's turning points (the registration points) are
+   found on the way (:mod:`catenary.chainage`).
+3. **Align** the encoder's positions to chainage: to the mast register's masts through the
+   registration points (fitting the encoder's scale error and the start chainage's error),
+   or ``start + position`` without a register.
+4. **Finish** (pass 2): each sample's chainage, span (the register's masts, or the turning
+   points without one), wire type and residual thickness, written to the run's samples file
+   (:mod:`catenary.samples`), and the span statistics (:mod:`catenary.spans`).
+5. **Store** in one transaction: the line, track and masts, the vehicle and rig calibration
+   (versioned), the run and its span measurements. The samples file is named after the run
+   and moved into place inside that transaction; a failure anywhere leaves neither a row
+   nor a file behind.
+
+Memory stays flat whatever the run's length: blocks of scans, bounded buffers, Parquet row
+groups (``benchmarks/process_memory.py``).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import uuid
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+from sqlalchemy import delete
+
+from catenary.chainage import ChainageAlignment, TurningPointFinder, align_to_register
+from catenary.config import Settings
+from catenary.domain import RunHeader, WireObservations
+from catenary.errors import UserError
+from catenary.pipeline import MeasurementChain, TrackSamples
+from catenary.plugins import PluginRegistry
+from catenary.register import TrackRegister, read_register
+from catenary.runfile import open_run
+from catenary.samples import SampleWriter, read_sample_batches
+from catenary.spans import SpanAccumulator, SpanLayout, SpanStatistics
+from catenary.storage.database import open_database, session_scope
+from catenary.storage.models import Run, SpanMeasurement
+from catenary.storage.rigs import register_rig_calibration
+from catenary.storage.runs import find_stored_run, register_track, track_masts
+from catenary.vehicle import load_vehicle_geometry
+from catenary.wiretype import WireType
+
+__all__ = ["DEFAULT_PROCESSOR", "ProcessRequest", "ProcessResult", "process_run"]
+
+
+DEFAULT_PROCESSOR = "linescan-stereo"
+BLOCK_SCANS = 1024
+SAMPLES_DIR = "samples"
+
+_MEASURED_SCHEMA = pa.schema(
+    [
+        ("scan", pa.int64()),
+        ("position_m", pa.float64()),
+        ("wire", pa.int32()),
+        ("height_mm", pa.float64()),
+        ("stagger_mm", pa.float64()),
+        ("wear_width_mm", pa.float64()),
+        ("cameras", pa.int16()),
+        ("vehicle_fault", pa.bool_()),
+    ]
+)
+"""Pass 1's intermediate file: the measurement chain's rows, before chainage and thickness."""
+
+
+@dataclass(frozen=True)
+class ProcessRequest:
+    """What ``catenary process`` was asked to do."""
+
+    run_path: Path
+    rig_path: Path
+    register_path: Path | None = None
+    wire_type: str | None = None
+    line: str | None = None
+    track: str | None = None
+    processor: str = DEFAULT_PROCESSOR
+    replace: bool = False
+
+
+@dataclass(frozen=True)
+class ProcessResult:
+    """What was stored (or found already stored: ``already_stored``)."""
+
+    run_id: int
+    already_stored: bool
+    replaced: bool = False
+    header: RunHeader | None = None
+    line: str = ""
+    track: str = ""
+    length_m: float = 0.0
+    chainage_range_m: tuple[float, float] = (math.nan, math.nan)
+    alignment: ChainageAlignment | None = None
+    spans: int = 0
+    span_rows: int = 0
+    samples: int = 0
+    outside_spans: int = 0
+    faulty: int = 0
+    minimum: SpanMeasurement | None = None
+    samples_path: Path | None = None
+
+
+@dataclass(frozen=True)
+class _Inputs:
+    """Everything checked before anything is written."""
+
+    header: RunHeader
+    line: str
+    track: str
+    register: TrackRegister | None
+    wire_types: dict[str, WireType]
+    rig_text: str
+    source_sha256: str
+
+
+def file_sha256(path: Path) -> str:
+    """SHA-256 of a file's content, read in 8 MiB pieces."""
+    digest = hashlib.sha256()
+    with path.open("rb") as handle:
+        while piece := handle.read(8 << 20):
+            digest.update(piece)
+    return digest.hexdigest()
+
+
+def _line_and_track(
+    request: ProcessRequest, header: RunHeader, register_tracks: list[tuple[str, str]]
+) -> tuple[str, str]:
+    line = request.line or header.line
+    track = request.track or header.track
+    if not (line and track) and len(register_tracks) == 1:
+        line, track = line or register_tracks[0][0], track or register_tracks[0][1]
+    if not line:
+        raise UserError(
+            f"{request.run_path}: the run names no line (root attribute 'line' is empty): "
+            "give --line"
+        )
+    if not track and register_tracks:
+        raise UserError(
+            f"{request.run_path}: the run names no track (root attribute 'track' is empty): "
+            "give --track"
+        )
+    return line, track
+
+
+def _check_inputs(request: ProcessRequest, registry: PluginRegistry) -> _Inputs:
+    with open_run(request.run_path) as run:
+        header = run.header
+    if header.scans == 0:
+        raise UserError(f"{request.run_path}: the run holds no scan")
+    wire_types = registry.wire_types()
+    if request.wire_type is not None and request.wire_type not in wire_types:
+        known = ", ".join(sorted(wire_types))
+        raise UserError(f"unknown wire type {request.wire_type!r} (known: {known})")
+    register_file = None
+    if request.register_path is not None:
+        register_file = read_register(request.register_path, wire_types)
+    line, track = _line_and_track(
+        request, header, sorted(register_file.tracks) if register_file else []
+    )
+    register = register_file.track(line, track) if register_file else None
+    if request.wire_type is None and register is None:
+        raise UserError(
+            "no wire type for the residual thickness: give --wire-type NAME, or a mast "
+            "register (--masts) whose masts name their wire type"
+        )
+    try:
+        rig_text = request.rig_path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise UserError(f"{request.rig_path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise UserError(f"{request.rig_path}: cannot read the rig calibration ({exc})") from None
+    return _Inputs(
+        header=header,
+        line=line,
+        track=track,
+        register=register,
+        wire_types=wire_types,
+        rig_text=rig_text,
+        source_sha256=file_sha256(request.run_path),
+    )
+
+
+def _processor(
+    request: ProcessRequest, registry: PluginRegistry, settings: Settings
+) -> tuple[Any, Any]:
+    """The processor (created: it reads and checks the rig) and the vehicle geometry."""
+    found = registry.processors().get(request.processor)
+    if found is None:
+        known = ", ".join(sorted(registry.processors())) or "none"
+        raise UserError(f"unknown processor {request.processor!r} (known: {known})")
+    options = settings.sections.get("processors", {}).get(request.processor, {})
+    if not isinstance(options, Mapping):
+        raise UserError(f"{settings.config_path}: [processors.{request.processor}] must be a table")
+    geometry = load_vehicle_geometry(request.rig_path)
+    return found.create(request.rig_path, options), geometry
+
+
+def _measure(
+    request: ProcessRequest,
+    processor: Any,
+    chain: MeasurementChain,
+    writer: SampleWriter,
+    progress: Callable[[int], None],
+) -> tuple[TurningPointFinder, float]:
+    """Pass 1: every block through the processor and the chain; returns the turning points
+    found and the run's last encoder position [m]."""
+    finder = TurningPointFinder()
+    last_position = 0.0
+
+    def keep(rows: TrackSamples) -> None:
+        writer.write({f.name: getattr(rows, f.name) for f in _MEASURED_SCHEMA})
+        good = ~rows.vehicle_fault
+        finder.push(rows.wire[good], rows.position_m[good], rows.stagger_mm[good])
+
+    def observations(value: Any) -> WireObservations:
+        if not isinstance(value, WireObservations):
+            raise TypeError(
+                f"processor {request.processor!r} returned {type(value).__name__}, "
+                "not WireObservations"
+            )
+        return value
+
+    with open_run(request.run_path) as run:
+        for block in run.blocks(BLOCK_SCANS):
+            keep(chain.push(block, observations(processor.process(block))))
+            if block.scans:
+                last_position = float(block.position_m[-1])
+            progress(block.scans)
+    keep(chain.finish(observations(processor.finish())))
+    return finder, last_position
+
+
+def _align(
+    inputs: _Inputs, finder: TurningPointFinder, last_position_m: float
+) -> tuple[ChainageAlignment, SpanLayout, np.ndarray[Any, Any]]:
+    header = inputs.header
+    turning = finder.finish()
+    if inputs.register is None:
+        alignment = ChainageAlignment.unaligned(
+            header.start_chainage_m, header.direction, "no mast register"
+        )
+    else:
+        alignment = align_to_register(
+            turning, inputs.register.chainage_m, header.start_chainage_m, header.direction
+        )
+    ends = alignment.chainage_m(np.array([0.0, last_position_m]))
+    if inputs.register is not None:
+        layout = SpanLayout.from_register(inputs.register)
+    else:
+        layout = SpanLayout.from_turning_points(
+            alignment.chainage_m(turning), (float(ends[0]), float(ends[1]))
+        )
+    return alignment, layout, ends
+
+
+def _finish(
+    measured: Path,
+    writer: SampleWriter,
+    alignment: ChainageAlignment,
+    layout: SpanLayout,
+    wire_types: dict[str, WireType],
+    run_wire_type: str | None,
+) -> tuple[SpanAccumulator, int, int]:
+    """Pass 2: chainage, span, wire type and residual thickness of every sample; returns
+    the span statistics, the samples outside every span and the faulty ones."""
+    spans = SpanAccumulator()
+    outside = faulty = 0
+    names = sorted({n for n in (*layout.wire_type, run_wire_type) if n is not None})
+    for batch in read_sample_batches(measured):
+        chainage = alignment.chainage_m(batch["position_m"])
+        index = layout.index(chainage)
+        if run_wire_type is not None:  # the whole run's, outside the spans too
+            type_of_row = np.full(index.shape, names.index(run_wire_type))
+        else:  # the register's: the span's first mast's
+            per_span = np.array([names.index(str(n)) for n in layout.wire_type])
+            type_of_row = np.where(index >= 0, per_span[index], -1)
+        width = batch["wear_width_mm"]
+        thickness = np.full(width.shape, np.nan)
+        for k, name in enumerate(names):  # a loop per wire type
+            rows = type_of_row == k
+            wire = wire_types[name]
+            thickness[rows] = wire.residual_thickness_mm(np.clip(width[rows], 0.0, wire.width_mm))
+        fault = batch["vehicle_fault"]
+        number = np.where(index >= 0, layout.number[index], -1)
+        writer.write(
+            {
+                **batch,
+                "chainage_m": chainage,
+                "residual_thickness_mm": thickness,
+                "span": number,
+            }
+        )
+        usable = ~fault & np.isfinite(batch["height_mm"]) & np.isfinite(batch["stagger_mm"])
+        outside += int(np.count_nonzero(index < 0))
+        faulty += int(np.count_nonzero(fault))
+        use = usable & (index >= 0)
+        spans.add(
+            index[use],
+            batch["wire"][use],
+            chainage[use],
+            thickness[use],
+            batch["height_mm"][use],
+            batch["stagger_mm"][use],
+        )
+    return spans, outside, faulty
+
+
+def _span_rows(
+    results: list[SpanStatistics],
+    layout: SpanLayout,
+    run_wire_type: str | None,
+) -> list[SpanMeasurement]:
+    rows = []
+    for s in results:
+        if s.thickness_samples == 0:
+            continue
+        wire_type = run_wire_type or layout.wire_type[s.span]
+        assert wire_type is not None
+        rows.append(
+            SpanMeasurement(
+                span=int(layout.number[s.span]),
+                mast_from=layout.mast_from[s.span],
+                mast_to=layout.mast_to[s.span],
+                start_chainage_m=float(layout.boundaries_m[s.span]),
+                end_chainage_m=float(layout.boundaries_m[s.span + 1]),
+                wire=s.wire,
+                wire_type=wire_type,
+                min_residual_thickness_mm=s.min_residual_thickness_mm,
+                min_at_chainage_m=s.min_at_chainage_m,
+                mean_residual_thickness_mm=s.mean_residual_thickness_mm,
+                height_min_mm=s.height_min_mm,
+                height_max_mm=s.height_max_mm,
+                stagger_min_mm=s.stagger_min_mm,
+                stagger_max_mm=s.stagger_max_mm,
+                samples=s.samples,
+            )
+        )
+    return rows
+
+
+def _started_at(header: RunHeader) -> datetime:
+    moment = datetime.fromisoformat(header.started_at.replace("Z", "+00:00"))
+    return moment if moment.tzinfo is not None else moment.replace(tzinfo=UTC)
+
+
+def process_run(
+    request: ProcessRequest,
+    settings: Settings,
+    registry: PluginRegistry,
+    progress: Callable[[int], None] = lambda scans: None,
+    on_start: Callable[[RunHeader], None] = lambda header: None,
+) -> ProcessResult:
+    """Process one run file into the database (module docstring); see ``ProcessResult``."""
+    inputs = _check_inputs(request, registry)
+    processor, geometry = _processor(request, registry, settings)
+    with open_database(settings.database_url) as engine:
+        with session_scope(engine) as session:
+            stored = find_stored_run(
+                session,
+                inputs.source_sha256,
+                geometry.name,
+                hashlib.sha256(inputs.rig_text.encode("utf-8")).hexdigest(),
+            )
+            if stored is not None and not request.replace:
+                return ProcessResult(run_id=stored.id, already_stored=True, header=inputs.header)
+            replaced = None if stored is None else stored.id
+
+        on_start(inputs.header)
+        folder = settings.data_dir / SAMPLES_DIR
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UserError(
+                f"{folder}: cannot create the samples folder ({exc.strerror})"
+            ) from None
+        token = uuid.uuid4().hex[:12]
+        measured = folder / f".pass1-{token}.parquet"
+        partial = folder / f".samples-{token}.parquet"
+        final: Path | None = None
+        old_samples: str | None = None
+        try:
+            with SampleWriter(measured, _MEASURED_SCHEMA) as writer:
+                finder, last_position = _measure(
+                    request, processor, MeasurementChain(geometry), writer, progress
+                )
+            alignment, layout, ends = _align(inputs, finder, last_position)
+            with SampleWriter(partial) as writer:
+                spans, outside, faulty = _finish(
+                    measured, writer, alignment, layout, inputs.wire_types, request.wire_type
+                )
+                samples = writer.rows
+            measured.unlink()
+            span_rows = _span_rows(spans.results(), layout, request.wire_type)
+            with session_scope(engine) as session:
+                line, track = register_track(session, inputs.line, inputs.track)
+                if inputs.register is not None:
+                    track_masts(session, track, inputs.register)
+                calibration = register_rig_calibration(
+                    session, geometry, request.rig_path.stem, inputs.rig_text
+                )
+                header = inputs.header
+                run = None if replaced is None else session.get(Run, replaced)
+                if run is None:
+                    run = Run()
+                else:  # processed again: same run id, its results replaced
+                    old_samples = run.samples_path
+                    session.execute(delete(SpanMeasurement).where(SpanMeasurement.run_id == run.id))
+                    session.expire(run, ["span_measurements"])
+                values = dict(
+                    line=line,
+                    track=track,
+                    direction=header.direction,
+                    vehicle=calibration.vehicle,
+                    rig_calibration=calibration,
+                    source_file=str(request.run_path.resolve()),
+                    source_sha256=inputs.source_sha256,
+                    wire_type=request.wire_type,
+                    started_at=_started_at(header),
+                    processed_at=datetime.now(UTC),
+                    scans=header.scans,
+                    length_m=float(abs(ends[1] - ends[0])),
+                    status="complete",
+                    error=None,
+                )
+                for name, value in values.items():
+                    setattr(run, name, value)
+                run.span_measurements = span_rows
+                session.add(run)
+                session.flush()
+                final = folder / f"run-{run.id}-{token}.parquet"
+                partial.replace(final)
+                run.samples_path = str(final.relative_to(settings.data_dir))
+                session.flush()
+                run_id = run.id
+            if old_samples:
+                (settings.data_dir / old_samples).unlink(missing_ok=True)
+        except BaseException:
+            for path in (measured, partial, final):
+                if path is not None:
+                    path.unlink(missing_ok=True)
+            raise
+    registry.run_stored(run_id, settings.database_url)
+    minimum = min(span_rows, key=lambda r: r.min_residual_thickness_mm, default=None)
+    return ProcessResult(
+        run_id=run_id,
+        already_stored=False,
+        replaced=replaced is not None,
+        header=inputs.header,
+        line=inputs.line,
+        track=inputs.track,
+        length_m=float(abs(ends[1] - ends[0])),
+        chainage_range_m=(float(min(ends)), float(max(ends))),
+        alignment=alignment,
+        spans=len({r.span for r in span_rows}),
+        span_rows=len(span_rows),
+        samples=samples,
+        outside_spans=outside,
+        faulty=faulty,
+        minimum=minimum,
+        samples_path=final,
+    )

@@ -1,0 +1,306 @@
+"""``catenary process``, ``export`` and ``compare`` end to end on a simulated run.
+
+The run is simulated with its ground truth and mast register, the rig calibrated from
+simulated captures (as a user would), and the real CLI processes it into a fresh database,
+on SQLite and on PostgreSQL. Results are checked against the truth with physical
+tolerances: residual thickness within 0.1 mm (the processor's worst case), chainage within
+the alignment's tolerance, spans cut at the register's masts.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from click.testing import CliRunner, Result
+from sqlalchemy import create_engine, func, select
+from sqlalchemy.orm import Session
+
+from catenary.cli import cli
+from catenary.run_commands import SPAN_COLUMNS
+from catenary.samples import EXPORT_COLUMNS
+from catenary.storage import migrate
+from catenary.storage.database import make_engine
+from catenary.storage.models import Mast, Run, SpanMeasurement
+from catenary_linescan.simulator import DEMO_RIG_PATH, load_rig, record_run
+from catenary_linescan.simulator.captures import write_captures
+
+pytestmark = pytest.mark.slow
+
+CHAINAGE_TOLERANCE_M = 0.3
+"""Aligned chainage against the truth: the registration points' positions are known to a
+decimetre or two, and the fit averages them."""
+
+THICKNESS_TOLERANCE_MM = 0.1
+"""Residual thickness against the truth, worst sample (the processor's target)."""
+
+
+@dataclass(frozen=True)
+class Simulated:
+    run: Path
+    truth: Path
+    masts: Path
+    rig: Path
+
+
+def invoke(*args: str) -> Result:
+    return CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
+
+
+SETTINGS = {"length_m": 250.0, "overlap": True, "speed_kmh": 160.0, "seed": 5}
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory: pytest.TempPathFactory) -> Simulated:
+    """The run with a 0.4 % encoder scale error and a start chainage 2.5 m off."""
+    folder = tmp_path_factory.mktemp("simulated")
+    run = folder / "run.h5"
+    errors = {"encoder_scale_error": 0.004, "start_chainage_error_m": -2.5}
+    record_run(run, {**SETTINGS, **errors})
+    captures, _ = write_captures(folder / "captures.h5", load_rig(DEMO_RIG_PATH), seed=2)
+    rig = folder / "rig.toml"
+    result = invoke("calibrate", captures, "--vehicle", DEMO_RIG_PATH, "-o", rig)
+    assert result.exit_code == 0, result.output
+    return Simulated(run, run.with_suffix(".truth.h5"), run.with_suffix(".masts.csv"), rig)
+
+
+@pytest.fixture
+def database(database_url: str) -> str:
+    engine = make_engine(database_url)
+    migrate.upgrade(engine)
+    engine.dispose()
+    return database_url
+
+
+def process(simulated: Simulated, database: str, *options: str) -> Result:
+    return invoke(
+        "process", simulated.run, "--rig", simulated.rig, "--masts", simulated.masts,
+        "--db", database, *options,
+    )  # fmt: skip
+
+
+def one_line_error(result: Result) -> str:
+    assert result.exit_code == 1, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Error: "), result.output
+    return lines[0]
+
+
+def stored(database: str) -> tuple[int, int]:
+    with Session(create_engine(database)) as session:
+        runs = session.scalar(select(func.count()).select_from(Run))
+        spans = session.scalar(select(func.count()).select_from(SpanMeasurement))
+    return int(runs or 0), int(spans or 0)
+
+
+def samples_of(database: str, data_dir: Path, run_id: int) -> dict[str, np.ndarray]:
+    with Session(create_engine(database)) as session:
+        run = session.get(Run, run_id)
+        assert run is not None and run.samples_path
+        table = pq.read_table(data_dir / run.samples_path)
+    return {name: table.column(name).to_numpy() for name in table.column_names}
+
+
+def truth_of(path: Path) -> dict[str, np.ndarray]:
+    with h5py.File(path, "r") as f:
+        return {
+            "chainage_m": f["/scans/chainage_m"][:],
+            "stagger_mm": f["/wires/stagger_mm"][:],
+            "running": f["/wires/running"][:],
+            "present": f["/wires/present"][:],
+            "contact": f["/wires/contact"][:],
+            "thickness": f["/wires/residual_thickness_mm"][:],
+        }
+
+
+def test_a_run_is_stored_with_its_spans_and_samples_against_the_truth(
+    simulated: Simulated, database: str, isolated_environment: Path
+) -> None:
+    result = process(simulated, database)
+    assert result.exit_code == 0, result.output
+    assert result.output.strip().splitlines()[-1] == "stored as run 1"
+    assert "aligned to the register" in result.output
+    with Session(create_engine(database)) as session:
+        run = session.get(Run, 1)
+        assert run is not None
+        assert (run.line.code, run.track.code if run.track else None) == ("demo-line", "1")
+        assert run.status == "complete" and run.vehicle.name == "demo-rig"
+        assert run.rig_calibration.version == 1
+        masts = {m.code: m.chainage_m for m in session.scalars(select(Mast))}
+        spans = list(run.span_measurements)
+    samples = samples_of(database, isolated_environment, 1)
+    truth = truth_of(simulated.truth)
+    scan = samples["scan"]
+    # chainage: aligned to the register despite the encoder's 0.4 % and the 2.5 m start error
+    chainage_error = samples["chainage_m"] - truth["chainage_m"][scan]
+    assert np.max(np.abs(chainage_error)) < CHAINAGE_TOLERANCE_M
+    # each sample is the contact wire nearest it at its scan (none is a messenger, a dropper)
+    distance = np.abs(truth["stagger_mm"][scan] - samples["stagger_mm"][:, None])
+    distance = np.where(truth["contact"] & truth["present"][scan], distance, np.inf)
+    nearest = np.argmin(distance, axis=1)
+    rows = np.arange(scan.shape[0])
+    on_wire = distance[rows, nearest] < 10.0
+    assert np.mean(on_wire) > 0.999
+    error = samples["residual_thickness_mm"] - truth["thickness"][scan, nearest]
+    good = on_wire & truth["running"][scan, nearest] & ~samples["vehicle_fault"]
+    assert np.nanmax(np.abs(error[good])) < THICKNESS_TOLERANCE_MM
+    # spans: from one register mast to the next, each minimum that of its samples
+    assert len(spans) >= 4
+    for row in spans:
+        assert masts[row.mast_from] == row.start_chainage_m
+        assert masts[row.mast_to] == row.end_chainage_m
+        rows = (samples["span"] == row.span) & (samples["wire"] == row.wire)
+        rows &= ~samples["vehicle_fault"]
+        assert row.samples == np.count_nonzero(rows)
+        assert row.min_residual_thickness_mm == pytest.approx(
+            np.nanmin(samples["residual_thickness_mm"][rows]), abs=1e-9
+        )
+        assert row.start_chainage_m <= row.min_at_chainage_m < row.end_chainage_m
+    # the overlap: two contact wires in one span at least
+    per_span = {}
+    for row in spans:
+        per_span.setdefault(row.span, set()).add(row.wire)
+    assert max(len(w) for w in per_span.values()) == 2
+
+
+def test_processing_twice_says_so_and_replace_replaces(
+    simulated: Simulated, database: str, isolated_environment: Path
+) -> None:
+    assert process(simulated, database).exit_code == 0
+    first = stored(database)
+    again = process(simulated, database)
+    assert again.exit_code == 0, again.output
+    assert "already stored" in again.output and "run 1" in again.output
+    assert stored(database) == first
+    (old_file,) = (isolated_environment / "samples").iterdir()
+    replaced = process(simulated, database, "--replace")
+    assert replaced.exit_code == 0, replaced.output
+    assert replaced.output.strip().splitlines()[-1] == "stored as run 1"  # the same run
+    assert stored(database) == first
+    (new_file,) = (isolated_environment / "samples").iterdir()
+    assert new_file != old_file and new_file.name.startswith("run-1-")
+
+
+def test_without_a_register_spans_come_from_the_turning_points(
+    simulated: Simulated, database: str
+) -> None:
+    result = invoke(
+        "process", simulated.run, "--rig", simulated.rig, "--wire-type", "CTA120", "--db", database
+    )
+    assert result.exit_code == 0, result.output
+    with Session(create_engine(database)) as session:
+        spans = list(session.scalars(select(SpanMeasurement)))
+    with simulated.masts.open() as handle:
+        register = np.array(sorted(float(row["chainage_m"]) for row in csv.DictReader(handle)))
+    assert all(row.mast_from is None for row in spans)
+    inner = sorted({row.start_chainage_m for row in spans})[1:]  # the first starts at the run
+    assert len(inner) >= 3
+    # each turning point is a registration, near a mast of the register (the encoder's
+    # 0.4 % and the start error: a few metres over this run)
+    offset = np.array([np.min(np.abs(register - c)) for c in inner])
+    assert np.all(offset < 4.0)
+
+
+def write(path: Path, text: str | bytes) -> Path:
+    if isinstance(text, bytes):
+        path.write_bytes(text)
+    else:
+        path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("case", "expected"),
+    [
+        ("run-not-hdf5", "run.h5"),
+        ("rig-not-toml", "rig.toml"),
+        ("rig-missing", "no such file"),
+        ("register-bad-chainage", "row 3: chainage_m = 'x' is not a finite number"),
+        ("register-other-line", "no masts for line 'demo-line' track '1'"),
+        ("unknown-wire-type", "unknown wire type 'CTA999'"),
+    ],
+)
+def test_bad_inputs_are_refused_in_one_line_before_anything_is_written(
+    simulated: Simulated, database: str, isolated_environment: Path, tmp_path: Path,
+    case: str, expected: str,
+) -> None:  # fmt: skip
+    run, rig, masts = simulated.run, simulated.rig, simulated.masts
+    extra: list[str] = []
+    text = masts.read_text().splitlines()
+    if case == "run-not-hdf5":
+        run = write(tmp_path / "run.h5", b"not a run file")
+    elif case == "rig-not-toml":
+        rig = write(tmp_path / "rig.toml", "[cameras\n")
+    elif case == "rig-missing":
+        rig = tmp_path / "missing.toml"
+    elif case == "register-bad-chainage":
+        head, first, second, *rest = text
+        second = ",".join(["x" if i == 3 else v for i, v in enumerate(second.split(","))])
+        masts = write(tmp_path / "masts.csv", "\n".join([head, first, second, *rest]))
+    elif case == "register-other-line":
+        masts = write(tmp_path / "masts.csv", "\n".join(t.replace("demo-line", "L9") for t in text))
+        extra = ["--line", "demo-line", "--track", "1"]
+    else:
+        extra = ["--wire-type", "CTA999"]
+    result = invoke("process", run, "--rig", rig, "--masts", masts, "--db", database, *extra)
+    assert expected in one_line_error(result)
+    assert stored(database) == (0, 0)
+    samples = isolated_environment / "samples"
+    assert not samples.exists() or not any(samples.iterdir())
+
+
+def test_a_failure_half_way_leaves_no_run_and_no_file(
+    simulated: Simulated, database: str, isolated_environment: Path, monkeypatch
+) -> None:
+    from catenary_linescan.processor import stereo
+
+    calls = []
+    process_block = stereo.LineScanProcessor.process
+
+    def failing(self, block):
+        calls.append(block.first_scan)
+        if len(calls) == 3:
+            raise OSError(5, "Input/output error")
+        return process_block(self, block)
+
+    monkeypatch.setattr(stereo.LineScanProcessor, "process", failing)
+    result = process(simulated, database)
+    assert "Input/output error" in one_line_error(result)
+    assert stored(database) == (0, 0)
+    assert not any((isolated_environment / "samples").iterdir())
+
+
+def test_an_unmigrated_database_is_refused(simulated: Simulated, tmp_path: Path) -> None:
+    result = process(simulated, f"sqlite:///{tmp_path / 'new.sqlite'}")
+    assert "catenary db upgrade" in one_line_error(result)
+
+
+def test_export_gives_exactly_the_formats_columns(
+    simulated: Simulated, database: str, tmp_path: Path
+) -> None:
+    assert process(simulated, database).exit_code == 0
+    for what, columns in (("samples", EXPORT_COLUMNS), ("spans", SPAN_COLUMNS)):
+        as_csv, as_parquet = tmp_path / f"{what}.csv", tmp_path / f"{what}.parquet"
+        for reference, out in (("latest", as_csv), ("1", as_parquet)):
+            result = invoke("export", reference, "--what", what, "-o", out, "--db", database)
+            assert result.exit_code == 0, result.output
+        table = pq.read_table(as_parquet)
+        assert tuple(table.column_names) == columns
+        with as_csv.open() as handle:
+            rows = list(csv.reader(handle))
+        assert tuple(rows[0]) == columns and len(rows) - 1 == table.num_rows > 0
+    assert SPAN_COLUMNS == (
+        "span", "mast_from", "mast_to", "start_chainage_m", "end_chainage_m", "wire",
+        "wire_type", "min_residual_thickness_mm", "min_at_chainage_m",
+        "mean_residual_thickness_mm", "height_min_mm", "height_max_mm", "stagger_min_mm",
+        "stagger_max_mm", "samples",
+    )  # fmt: skip
+    bad = invoke("export", "7", "--what", "spans", "-o", tmp_path / "x.csv", "--db", database)
+    assert "no run 7" in one_line_error(bad)
+    bad = invoke("export", "1", "--what", "spans", "-o", tmp_path / "x.txt", "--db", database)
+    assert ".csv or .parquet" in one_line_error(bad)
