@@ -304,3 +304,31 @@ def test_export_gives_exactly_the_formats_columns(
     assert "no run 7" in one_line_error(bad)
     bad = invoke("export", "1", "--what", "spans", "-o", tmp_path / "x.txt", "--db", database)
     assert ".csv or .parquet" in one_line_error(bad)
+
+
+@pytest.fixture(scope="module")
+def repeated(simulated: Simulated, tmp_path_factory: pytest.TempPathFactory) -> Simulated:
+    """A second run over the same section (the scene of seed 5): other motion, noise and
+    encoder errors (-0.25 %, start 1.8 m off)."""
+    folder = tmp_path_factory.mktemp("repeated")
+    run = folder / "run.h5"
+    errors = {"encoder_scale_error": -0.0025, "start_chainage_error_m": 1.8}
+    record_run(run, {**SETTINGS, **errors, "seed": 6, "scene_seed": 5})
+    return Simulated(
+        run, run.with_suffix(".truth.h5"), run.with_suffix(".masts.csv"), simulated.rig
+    )
+
+
+def test_two_runs_over_the_same_wire_repeat_within_a_tenth_of_a_millimetre(
+    simulated: Simulated, repeated: Simulated, database: str
+) -> None:
+    assert process(simulated, database).exit_code == 0
+    assert process(repeated, database).exit_code == 0
+    result = invoke("compare", "1", "2", "--db", database)
+    assert result.exit_code == 0, result.output
+    (within,) = [line for line in result.output.splitlines() if line.startswith("within")]
+    share = float(within.split()[-2])
+    assert share >= 95.0, result.output  # the paper: 90 %
+    assert "histogram of B - A" in result.output
+    bad = invoke("compare", "1", "9", "--db", database)
+    assert "no run 9" in one_line_error(bad)
