@@ -8,21 +8,12 @@ from click.testing import CliRunner
 
 from catenary.runfile import open_run
 from catenary_linescan.simulator import simulate
-from catenary_linescan.simulator.settings import DEMO_RIG_PATH
 
 
-def small_rig_file(tmp_path: Path) -> Path:
-    text = DEMO_RIG_PATH.read_text()
-    text = text.replace("pixels = 4096", "pixels = 512").replace(
-        "pixel_pitch_um = 7.0", "pixel_pitch_um = 56.0"
-    )
-    path = tmp_path / "small.sim.toml"
-    path.write_text(text)
-    return path
-
-
-def test_simulate_writes_run_truth_register_and_captures(tmp_path: Path) -> None:
-    rig = small_rig_file(tmp_path)
+def test_simulate_writes_run_truth_register_and_captures(
+    tmp_path: Path, small_rig_file: Path
+) -> None:
+    rig = small_rig_file
     out = tmp_path / "run.h5"
     result = CliRunner().invoke(
         simulate,
@@ -51,13 +42,13 @@ def test_simulate_writes_run_truth_register_and_captures(tmp_path: Path) -> None
     assert "already exists" in again.output and "Traceback" not in again.output
 
 
-def test_bad_options_are_one_line_errors(tmp_path: Path) -> None:
+def test_bad_options_are_one_line_errors(tmp_path: Path, small_rig_file: Path) -> None:
     runner = CliRunner()
     result = runner.invoke(simulate, [str(tmp_path / "a.h5"), "--rig", str(tmp_path / "no.toml")])
     assert result.exit_code != 0
     assert "no such rig file" in result.output
     assert len(result.output.strip().splitlines()) == 1
-    rig = small_rig_file(tmp_path)
+    rig = small_rig_file
     result = runner.invoke(
         simulate, [str(tmp_path / "a.h5"), "--rig", str(rig), "--sun-blind", "cam7"]
     )
@@ -68,9 +59,9 @@ def test_bad_options_are_one_line_errors(tmp_path: Path) -> None:
 
 
 def test_captures_into_a_missing_directory_fail_before_anything_is_written(
-    tmp_path: Path,
+    tmp_path: Path, small_rig_file: Path
 ) -> None:
-    rig = small_rig_file(tmp_path)
+    rig = small_rig_file
     out = tmp_path / "run.h5"
     result = CliRunner().invoke(
         simulate,

@@ -16,7 +16,7 @@ from catenary.errors import UserError
 from catenary_linescan.simulator import simulate
 from catenary_linescan.simulator.rig import SimRig
 from catenary_linescan.simulator.scene import Scene, generate_scene
-from catenary_linescan.simulator.settings import DEMO_RIG_PATH, parse_settings
+from catenary_linescan.simulator.settings import parse_settings
 from catenary_linescan.simulator.simulation import Simulation
 
 LENGTH_M = 20.0
@@ -98,18 +98,8 @@ def test_bad_scene_seed_is_a_user_error(value: object) -> None:
         parse_settings({"scene_seed": value})
 
 
-def small_rig_file(tmp_path: Path) -> Path:
-    text = DEMO_RIG_PATH.read_text()
-    text = text.replace("pixels = 4096", "pixels = 512").replace(
-        "pixel_pitch_um = 7.0", "pixel_pitch_um = 56.0"
-    )
-    path = tmp_path / "small.sim.toml"
-    path.write_text(text)
-    return path
-
-
-def test_simulate_command_takes_a_scene_seed(tmp_path: Path) -> None:
-    rig = small_rig_file(tmp_path)
+def test_simulate_command_takes_a_scene_seed(tmp_path: Path, small_rig_file: Path) -> None:
+    rig = small_rig_file
     common = ["--rig", str(rig), "--length-m", "2", "--scan-rate-hz", "200", "--scene-seed", "7"]
     for seed in ("1", "2"):
         out = tmp_path / f"run{seed}.h5"
