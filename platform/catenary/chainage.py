@@ -448,7 +448,8 @@ class TurningPointFinder:
                 self._close(state)  # a gap: nothing between decides anything
             if state.moments is None:
                 state.done = g - _MARGIN if not state.started else max(state.done, g - _MARGIN)
-                state.origin = state.done - _MARGIN
+                # rows continuing a released wire may fall in its last bins again
+                state.origin = min(state.done - _MARGIN, g)
                 state.moments = np.zeros((_MOMENTS, _CAPACITY))
                 state.started = True
             if g >= state.origin + _CAPACITY:

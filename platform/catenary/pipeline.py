@@ -12,7 +12,8 @@ gives :class:`TrackSamples`:
 2. **stagger-angle correction** (``catenary.wear``): ``w0 = w cos θ`` with ``θ`` from the
    measured stagger gradient of the row's own wire, fitted with ``window_m`` of the wire's
    samples on either side: a wire's rows are held until it has been seen ``window_m``
-   further, and the last ``window_m`` of rows already given out are kept as the left context.
+   further (or until the train is ``history_m + window_m`` past its last row: it has ended),
+   and the last ``window_m`` of rows already given out are kept as the left context.
 
 Memory is bounded by ``history_m`` of scans and ``2 window_m`` of rows per wire, whatever the
 run's length. Residual thickness and chainage come later, once the run's chainage is aligned
@@ -120,6 +121,7 @@ class MeasurementChain:
         self.history_m = history_m
         self._first_scan = 0  # run index of the first scan kept
         self._next_scan = 0
+        self._latest_position_m = -np.inf
         self._position = np.zeros(0)
         self._sensors = np.zeros((3, 0))  # left, right, lateral [mm]
         self._fault = np.zeros(0, dtype=bool)
@@ -140,6 +142,8 @@ class MeasurementChain:
         self._sensors = np.concatenate([self._sensors, sensors], axis=1)
         self._fault = np.concatenate([self._fault, fault | ~np.isfinite(sensors).all(axis=0)])
         self._next_scan += n
+        if n:
+            self._latest_position_m = float(block.position_m[-1])
         self._add(observations)
         if n:
             keep = np.searchsorted(self._position, block.position_m[-1] - self.history_m)
@@ -190,9 +194,11 @@ class MeasurementChain:
             if pending.rows == 0:
                 continue
             frontier = float(np.max(pending.position_m))
+            # a wire seen last further back than any row can still come: nothing will follow
+            idle = frontier < self._latest_position_m - self.history_m - self.window_m
             ready = (
                 np.ones(pending.rows, dtype=bool)
-                if final
+                if final or idle
                 else pending.position_m <= frontier - self.window_m
             )
             if not ready.any():

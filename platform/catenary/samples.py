@@ -66,7 +66,7 @@ SAMPLES_SCHEMA = pa.schema(
     metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)},
 )
 
-ROW_GROUP_ROWS = 65_536
+ROW_GROUP_ROWS = 16_384
 
 
 class SampleWriter:

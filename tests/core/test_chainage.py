@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from catenary.chainage import (
+    IDLE_RELEASE_M,
     ChainageAlignment,
     TurningPointFinder,
     align_to_register,
@@ -270,6 +271,17 @@ def test_a_gap_in_a_wire_and_a_wire_resumed() -> None:
     assert np.all(distance < TURNING_STRAIGHT_M)
     hit = np.min(np.abs(found[:, None] - truth[None, :]), axis=0) < TURNING_STRAIGHT_M
     assert np.all(hit[clear]) and not np.any(hit[inside])
+
+
+def test_a_wire_released_while_idle_continues_in_its_last_bin() -> None:
+    # wire 1 stops; wire 0 runs on past IDLE_RELEASE_M, which releases wire 1; then wire 1's
+    # last held rows arrive, in the bin of its last sample (a chain releasing an ended wire)
+    finder = TurningPointFinder()
+    finder.push([1, 1], [10.0, 10.05], [100.0, 100.5])
+    far = np.arange(10.0, 10.0 + IDLE_RELEASE_M + 50.0, 0.5)
+    finder.push(np.zeros(far.shape, np.int64), far, np.zeros(far.shape))
+    finder.push([1], [10.06], [100.6])
+    assert finder.finish().shape == (0,)
 
 
 def test_memory_does_not_grow_with_the_run() -> None:

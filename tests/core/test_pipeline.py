@@ -137,3 +137,16 @@ def test_a_row_released_too_late_is_refused():
                 chain.push(b, observations(np.arange(0, 10), scans, 8.0))
             return
         chain.push(b, observations(np.zeros(0, np.int64), scans, 8.0))
+
+
+def test_a_wire_that_ended_is_given_out_before_the_run_ends():
+    scans = run_scans(20000)  # 400 m
+    chain = MeasurementChain(GEOMETRY, history_m=50.0)
+    given = []
+    for b in blocks(scans, 1024):
+        scan = np.arange(b.first_scan, b.first_scan + b.scans)
+        ended = scan[scans["position_m"][scan] < 100.0]  # the wire leaves the view at 100 m
+        given.append(chain.push(b, observations(ended, scans, 8.0)))
+    rows = TrackSamples.concatenate(given)
+    assert rows.rows == np.count_nonzero(scans["position_m"] < 100.0)
+    assert chain.finish(observations(np.zeros(0, np.int64), scans, 8.0)).rows == 0
