@@ -16,10 +16,6 @@ of every scan it prints:
   encoder position minus the mast's chainage);
 - the fitted scale and start against the true ones.
 
-The simulator lays out its scene from the start chainage upward, so a run in the decreasing
-direction would leave the scene after its 150 m margin; here such a case gets the scene laid
-out below its start (same seed, same generator).
-
     .venv/bin/python benchmarks/alignment.py            # every case (a few minutes)
     .venv/bin/python benchmarks/alignment.py --quick    # 400 m runs
     .venv/bin/python benchmarks/alignment.py --cases curve
@@ -32,7 +28,7 @@ import math
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -48,8 +44,6 @@ from catenary.vehicle import roof_to_track
 from catenary_linescan.processor.stereo import LineScanProcessor
 from catenary_linescan.rig import Rig
 from catenary_linescan.simulator import Simulation, parse_settings
-from catenary_linescan.simulator.motion import Motion
-from catenary_linescan.simulator.scene import generate_scene
 
 SPURIOUS_M = 5.0
 """A turning point with no mast within this (true chainage) is spurious."""
@@ -119,24 +113,7 @@ def simulation(case: Case, quick: bool) -> Simulation:
     settings = dict(case.settings)
     if quick:
         settings["length_m"] = min(settings["length_m"], 400.0)
-    sim = Simulation(parse_settings(settings))
-    s = sim.settings
-    if s.direction == "decreasing":
-        # the scene below the start: the run's chainage falls from start to start - length
-        params = replace(s.scene_params(), start_chainage_m=s.start_chainage_m - s.length_m)
-        sim.scene = generate_scene(params, s.seed)
-        scene = sim.scene
-        sim.motion = Motion(
-            s.motion_params(),
-            s.seed,
-            s.length_m,
-            s.start_chainage_m,
-            sim.geometry,
-            curve=(scene.curve_start_m, scene.curve_end_m, scene.curvature_per_m),
-        )
-        sim.scans = sim.motion.scans
-        sim.wire_names = [w.name for w in scene.wires]
-    return sim
+    return Simulation(parse_settings(settings))
 
 
 def _stats(errors: np.ndarray) -> tuple[float, float]:

@@ -10,6 +10,7 @@ import pytest
 from catenary.errors import UserError
 from catenary.wiretype import residual_thickness_mm
 from catenary_linescan.simulator.scene import SceneParams, generate_scene, wire_type_dims
+from catenary_linescan.simulator.settings import parse_settings
 
 ROOF = 3900.0
 
@@ -140,3 +141,13 @@ def test_wire_types_come_from_the_plugin() -> None:
     scene = generate_scene(SceneParams(length_m=300.0, wire_type="AC-100"), seed=1)
     assert scene.wires[0].radius_mm == pytest.approx(6.0)
     assert math.isclose(scene.wires[0].max_wear_mm, min(12.0, 0.93 * 12.0))
+
+
+@pytest.mark.parametrize("direction", ["increasing", "decreasing"])
+def test_the_scene_covers_the_run_whichever_way_it_runs(direction: str) -> None:
+    settings = parse_settings({"length_m": 1000.0, "direction": direction, "seed": 4})
+    scene = generate_scene(settings.scene_params(), settings.seed)
+    masts = np.array([m.chainage_m for m in scene.masts])
+    step = 1000.0 if direction == "increasing" else -1000.0
+    low, high = sorted((settings.start_chainage_m, settings.start_chainage_m + step))
+    assert masts.min() < low and masts.max() > high

@@ -129,7 +129,8 @@ class SceneParams:
     200 m get a curve over their second half), 0 keeps the section straight, a positive value
     puts a curve of that radius over the second half (sign of ``curve_direction``: +1 bends
     to the right). ``contact_height_above_roof_mm`` bounds the heights at registration points
-    (track frame minus ``roof_height_mm``).
+    (track frame minus ``roof_height_mm``). ``start_chainage_m`` is the lower end of the
+    run's chainages, whichever way the train runs.
     """
 
     length_m: float = 300.0

@@ -105,9 +105,11 @@ class SimulationSettings:
         return self.seed if self.scene_seed is None else self.scene_seed
 
     def scene_params(self) -> SceneParams:
+        """The scene around the run's chainages: from its start up, or down when decreasing."""
+        decreasing = self.direction == "decreasing"
         return SceneParams(
             length_m=self.length_m,
-            start_chainage_m=self.start_chainage_m,
+            start_chainage_m=self.start_chainage_m - (self.length_m if decreasing else 0.0),
             line=self.line,
             track=self.track,
             wire_type=self.wire_type,
