@@ -75,6 +75,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import sys
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -89,7 +90,7 @@ IntArray = NDArray[np.intp]
 _GROUP_BYTES = 1 << 22
 """Bytes of line data processed at once: the more lines, the less per-call overhead; the
 per-pixel work is done in pieces of ``_CACHE_BYTES``."""
-_CACHE_BYTES = 1 << 18
+_CACHE_BYTES = 1 << 19
 """Bytes of line data whose per-pixel temporaries stay in the CPU's cache."""
 _SUPER = 4
 """Bins per cell: the background windows are laid out on cells."""
@@ -367,9 +368,11 @@ def _noise_sigma(data: np.ndarray, samples: int, floor: float) -> NDArray[np.flo
     np.abs(diff, out=diff)
     diff.sort(axis=1)
     median = diff[:, count // 2 : count // 2 + 1]
-    # grouped median of integers: interpolate within the median's class
-    below = np.count_nonzero(diff < median, axis=1)
-    at = np.count_nonzero(diff == median, axis=1)
+    # grouped median of integers: interpolate within the median's class, the run of the
+    # sorted row that holds the median's value (``below`` samples before it, ``at`` in it)
+    below = np.argmax(diff >= median, axis=1)
+    past = np.where(diff[:, -1] > median[:, 0], np.argmax(diff > median, axis=1), count)
+    at = past - below
     m = median[:, 0].astype(np.float32)
     lower = np.where(m < 0.5, np.float32(0.0), m - np.float32(0.5))
     width_class = np.where(m < 0.5, np.float32(0.5), np.float32(1.0))
@@ -380,8 +383,8 @@ def _noise_sigma(data: np.ndarray, samples: int, floor: float) -> NDArray[np.flo
 
 _LOW_BYTES = np.uint64(0x00FF00FF00FF00FF)
 _LOW_WORDS = np.uint64(0x0000FFFF0000FFFF)
-_LOW_DWORD = np.uint64(0xFFFFFFFF)
 _ADD_WORDS = np.uint64(0x0001000100010001)
+_ADD_DWORDS = np.uint64(0x0000000100000001)
 
 
 def _bin_sums(data: np.ndarray, b: int) -> NDArray[np.float32]:
@@ -389,7 +392,8 @@ def _bin_sums(data: np.ndarray, b: int) -> NDArray[np.float32]:
 
     Lines whose bytes pack whole bins into 64-bit words are summed in the words (SIMD
     within a register: no per-pixel conversion), a few rows at a time so that the words
-    stay in cache; others by a float reduction.
+    stay in cache; the total lands in the word's top lane, read through a narrower view.
+    Others by a float reduction.
     """
     r, width = data.shape
     nb = width // b
@@ -400,28 +404,25 @@ def _bin_sums(data: np.ndarray, b: int) -> NDArray[np.float32]:
     out = np.empty((r, nb), dtype=np.float32)
     k = b // per_word
     rows = max(1, _CACHE_BYTES // (width * data.dtype.itemsize))
+    high = np.empty((rows, width // per_word), dtype=np.uint64)
+    shift = 8 * data.dtype.itemsize
+    lanes = 4 if per_word == 8 else 2  # the lanes of the word's total: 16 or 32 bits
+    top = lanes - 1 if sys.byteorder == "little" else 0
+    mask, add = (_LOW_BYTES, _ADD_WORDS) if per_word == 8 else (_LOW_WORDS, _ADD_DWORDS)
     for first in range(0, r, rows):
         words = data[first : first + rows].view(np.uint64)  # (rows, width / per_word)
-        if per_word == 8:
-            low = words & _LOW_BYTES
-            words = words >> np.uint64(8)
-            words &= _LOW_BYTES
-            words += low  # four 16-bit sums of pixel pairs
-            words *= _ADD_WORDS
-            words >>= np.uint64(48)  # their total: the sum of 8 pixels
-        else:
-            low = words & _LOW_WORDS
-            words = words >> np.uint64(16)
-            words &= _LOW_WORDS
-            words += low  # two 32-bit sums of pixel pairs
-            low = words & _LOW_DWORD
-            words >>= np.uint64(32)
-            words += low  # the sum of 4 pixels
-        words = words[:, : nb * k]
+        pairs = high[: words.shape[0]]
+        np.right_shift(words, np.uint64(shift), out=pairs)
+        pairs &= mask  # the odd pixels
+        pairs *= np.uint64((1 << shift) - 1)
+        np.subtract(words, pairs, out=pairs)  # four 16-bit (two 32-bit) sums of pixel pairs
+        pairs *= add  # their total in the top lane: the sum of 8 (4) pixels
+        total = pairs.view(np.uint16 if per_word == 8 else np.uint32)[:, top::lanes]
+        total = total[:, : nb * k]
         part = out[first : first + rows]
-        part[:] = words[:, 0::k]
+        part[:] = total[:, 0::k]
         for i in range(1, k):
-            part += words[:, i::k]
+            part += total[:, i::k]
     return out
 
 
@@ -430,15 +431,23 @@ def _window_sums(values: NDArray[np.float32], guard: int, train: int) -> tuple[n
     beyond ``guard`` cells; the line's ends are extended by their last cell."""
     r, n = values.shape
     pad = guard + train
-    padded = np.empty((r, n + 2 * pad), dtype=values.dtype)
+    w = n + 2 * pad
+    padded = np.empty((r, w), dtype=values.dtype)
     padded[:, pad : pad + n] = values
     padded[:, :pad] = values[:, :1]
     padded[:, pad + n :] = values[:, -1:]
-    span = n + 2 * pad - train + 1
-    total = padded[:, :span] + padded[:, 1 : 1 + span] if train > 1 else padded[:, :span].copy()
+    # summed flat (one long loop, not one per line): total[:, i] sums padded[:, i : i + train]
+    # for i < w - train + 1, which is all that is read; cell j sits at padded[:, pad + j]
+    flat = padded.ravel()
+    span = r * w - train + 1
+    total = np.empty(r * w, dtype=values.dtype)
+    if train > 1:
+        np.add(flat[:span], flat[1 : 1 + span], out=total[:span])
+    else:
+        total[:span] = flat[:span]
     for k in range(2, train):
-        total += padded[:, k : k + span]
-    # total[:, i] sums padded[:, i : i + train]; cell j sits at padded[:, pad + j]
+        total[:span] += flat[k : k + span]
+    total = total.reshape(r, w)
     return total[:, guard : guard + n], total[:, pad + guard + 1 : pad + guard + 1 + n]
 
 
@@ -463,19 +472,21 @@ def _detect(
     padded = sums
     if ns * _SUPER != nb:
         padded = np.pad(sums, ((0, 0), (0, ns * _SUPER - nb)), mode="edge")
-    by_cell = padded.reshape(r * ns, _SUPER)  # flat: no per-line loop in the ufuncs
+    # flat: no per-line loop in the ufuncs; the sums are non-negative, so that their bits
+    # order as they do (integer extremes of strided columns are twice as fast)
+    by_cell = padded.view(np.int32).reshape(r * ns, _SUPER)
     lowest = np.minimum(by_cell[:, 0], by_cell[:, 1])
     highest = np.maximum(by_cell[:, 0], by_cell[:, 1])
     for i in range(2, _SUPER):
         np.minimum(lowest, by_cell[:, i], out=lowest)
         np.maximum(highest, by_cell[:, i], out=highest)
-    lowest = lowest.reshape(r, ns)
-    highest = highest.reshape(r, ns)
+    lowest = lowest.view(np.float32).reshape(r, ns)
+    highest = highest.view(np.float32).reshape(r, ns)
     cell_px = _SUPER * b
     guard = max(1, math.ceil((cfg.max_width + b) / cell_px))
     train = max(1, round(cfg.background / cell_px))
     noise = np.empty((r, ns), dtype=np.float32)
-    noise[:] = (np.float32(cfg.detect_k * math.sqrt(b)) * sigma)[:, None]
+    noise[:] = (np.float32(cfg.detect_k * math.sqrt(b)) * sigma).astype(np.float32)[:, None]
     rel = np.float32(cfg.detect_rel / train)  # window sums: train cells
     left, right = _window_sums(highest, guard, train)
     bright = np.maximum(left, right)
@@ -487,32 +498,35 @@ def _detect(
     dark *= np.float32(1.0 / train)
     weak_bright = bright + np.maximum(noise, np.float32(0.5) * bright_t)
     weak_dark = dark - np.maximum(noise, np.float32(0.5) * dark_t)
-    bright += bright_t
-    dark -= dark_t
     hit = np.flatnonzero((highest > weak_bright) | (lowest < weak_dark))
     detected = np.zeros((r, nb), dtype=np.int8)
     if hit.shape[0] == 0:
         return detected
     row = hit // ns
     cell = hit - row * ns
-    # the cell's bins and one more on each side, for the steps between them
-    bins = np.clip(cell[:, None] * _SUPER + np.arange(-1, _SUPER + 1), 0, nb - 1)
-    near = sums.ravel()[row[:, None] * nb + bins]  # (k, _SUPER + 2)
-    cells = near[:, 1:-1]
-    strong = (cells > bright.ravel()[hit, None]) | (cells < dark.ravel()[hit, None])
-    weak = (cells > weak_bright.ravel()[hit, None]) | (cells < weak_dark.ravel()[hit, None])
-    step = np.abs(near[:, 1:] - near[:, :-1])
-    level = np.maximum(near[:, 1:], near[:, :-1])
+    # the cell's bins and one more on each side, for the steps between them, transposed
+    # ``(_SUPER + 2, k)`` so that the ufuncs run along the hits
+    bins = np.clip(cell * _SUPER + np.arange(-1, _SUPER + 1)[:, None], 0, nb - 1)
+    near = sums.ravel()[row * nb + bins]
+    cells = near[1:-1]
+    # the strong thresholds, needed at the hits only
+    strong_bright = bright.ravel()[hit] + bright_t.ravel()[hit]
+    strong_dark = dark.ravel()[hit] - dark_t.ravel()[hit]
+    weak_bright = weak_bright.ravel()[hit]
+    strong = (cells > strong_bright) | (cells < strong_dark)
+    brighter = cells > weak_bright
+    weak = brighter | (cells < weak_dark.ravel()[hit])
+    step = np.abs(near[1:] - near[:-1])
+    level = np.maximum(near[1:], near[:-1])
     level *= np.float32(cfg.edge_rel)
-    np.maximum(level, np.float32(math.sqrt(2.0)) * noise.ravel()[hit, None], out=level)
-    edge = step > level  # (k, _SUPER + 1): edge[:, i] lies before bin i of the cell
-    weak &= edge[:, :-1] | edge[:, 1:]
+    np.maximum(level, np.float32(math.sqrt(2.0)) * noise.ravel()[hit], out=level)
+    edge = step > level  # (_SUPER + 1, k): edge[i] lies before bin i of the cell
+    weak &= edge[:-1] | edge[1:]
     strong |= weak
     # +1 for a bright bin, -1 for a dark one (0: not detected)
-    sign = np.where(cells > weak_bright.ravel()[hit, None], 1, -1).astype(np.int8) * strong
-    inside = bins[:, 1:-1] == cell[:, None] * _SUPER + np.arange(_SUPER)  # not past the end
-    where = row[:, None] * nb + bins[:, 1:-1]
-    detected = detected.view(np.int8)
+    sign = np.where(brighter, 1, -1).astype(np.int8) * strong
+    inside = bins[1:-1] == cell * _SUPER + np.arange(_SUPER)[:, None]  # not past the end
+    where = row * nb + bins[1:-1]
     detected.ravel()[where[inside]] = sign[inside]
     return detected
 
@@ -520,7 +534,8 @@ def _detect(
 def _runs(mask: NDArray[np.bool_]) -> tuple[IntArray, IntArray, IntArray]:
     """Runs of True along axis 1: ``(row, start, stop)`` in raster order."""
     r, c = mask.shape
-    padded = np.zeros((r, c + 1), dtype=np.int8)
+    padded = np.empty((r, c + 1), dtype=np.int8)
+    padded[:, 0] = 0
     padded[:, 1:] = mask
     flat = padded.ravel()
     change = np.flatnonzero(flat[1:] != flat[:-1])
@@ -532,6 +547,14 @@ def _runs(mask: NDArray[np.bool_]) -> tuple[IntArray, IntArray, IntArray]:
 
 
 # -- the fine pass: boundaries and faces on windows around the candidates -------------------
+
+
+def _float32_below(x: FloatArray) -> NDArray[np.float32]:
+    """The largest float32 at or below each non-negative value of ``x``: for float32 ``a``,
+    ``a > x`` exactly when ``a > _float32_below(x)`` (a float32 comparison is faster). A
+    positive float32 rounded up steps down by one in its bits."""
+    near = x.astype(np.float32)
+    return (near.view(np.int32) - (near > x)).view(np.float32)
 
 
 def _take(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
@@ -586,10 +609,10 @@ def _edge(d: np.ndarray, rows: np.ndarray, k: np.ndarray, sign: np.ndarray) -> F
     ``sign`` +1 for rising edges, -1 for falling ones."""
     width = d.shape[1]
     k = np.clip(k, 1, width - 2)
-    at = (rows * width + k)[:, None] + np.arange(-1, 2)
-    three = d.ravel()[at].astype(np.float64)
-    three *= sign[:, None]
-    return k + 0.5 + _extremum_offset(three[:, 0], three[:, 1], three[:, 2])
+    at = rows * width + k + np.arange(-1, 2)[:, None]
+    three = d.ravel()[at].astype(np.float64)  # (3, m)
+    three *= sign
+    return k + 0.5 + _extremum_offset(three[0], three[1], three[2])
 
 
 def _sharp(
@@ -789,17 +812,18 @@ def _fine(
     saturated = np.maximum.reduceat(raw, base) >= full
     raw = raw.astype(np.float32)
     pairs = raw[:-1] + raw[1:]
-    xs4 = np.zeros(m * stride, dtype=np.float32)
+    xs4 = np.empty(m * stride, dtype=np.float32)
     np.add(pairs[:-1], pairs[1:], out=xs4[:-2])  # xs4[i * stride + j]: pixel j, j < length
+    xs4[-2:] = 0.0
     s = sigma[row]
     s4 = s * np.float32(4.0 * math.sqrt(6.0 / 16.0))  # noise of xs4
 
     # the sky on either side: at the window's ends, or clear of a nearer neighbour
     at_l = np.clip(gap_l - first_px, 0, margin - _SKY_PX)
     at_r = np.clip(gap_r - _SKY_PX - first_px, own - margin, own - _SKY_PX)
-    quad = np.arange(_SKY_PX)
-    sky_px = xs4[np.concatenate([base + at_l, base + at_r])[:, None] + quad]  # (2m, _SKY_PX)
-    sky_lr = sky_px.mean(axis=1)
+    quad = np.arange(_SKY_PX)[:, None]
+    sky_px = xs4[quad + np.concatenate([base + at_l, base + at_r])]  # (_SKY_PX, 2m)
+    sky_lr = sky_px.mean(axis=0)
     sky_l, sky_r = sky_lr[:m], sky_lr[m:]
     slope = (sky_r - sky_l) / (at_r - at_l).astype(np.float32)
     ramp0 = sky_l - slope * (at_l + np.float32(0.5 * (_SKY_PX - 1)))  # the sky at pixel 0
@@ -824,23 +848,33 @@ def _fine(
     level = np.maximum(cfg.boundary_k * s4, cfg.boundary_rel * np.abs(peak_dev))
     # and above the sky's texture: the largest deviation of each side's sky pixels from the
     # ramp (which runs through their mean): what the ramp does not model beside the wire
-    sky_px -= sky_lr[:, None]
-    sky_px -= np.concatenate([slope, slope])[:, None] * (quad - np.float32(0.5 * (_SKY_PX - 1)))
+    sky_px -= sky_lr
+    sky_px -= np.concatenate([slope, slope]) * (quad - np.float32(0.5 * (_SKY_PX - 1)))
     # (more than ``detect_rel`` of the wire's contrast is not the sky's texture but a
     # neighbour's edge reaching into the sky pixels: the level is capped there)
-    texture = np.abs(sky_px).max(axis=1)
+    texture = np.abs(sky_px).max(axis=0)
     texture *= np.float32(_TEXTURE)
     np.minimum(texture, np.float32(cfg.detect_rel) * np.abs(np.tile(peak_dev, 2)), out=texture)
     level2 = np.maximum(np.concatenate([level, level]), texture)
     count = margin + 2 * b
     k = np.arange(count)[:, None]
-    pixel = np.concatenate([np.broadcast_to(k, (count, m)), own - 1 - k], axis=1)
-    dev = xs4[np.concatenate([base, base]) + pixel]
-    dev -= np.concatenate([ramp0, ramp0]) + np.concatenate([slope, slope]) * pixel
+    dev = np.empty((count, 2 * m), dtype=np.float32)
+    dev[:, :m] = xs4.reshape(m, stride)[:, :count].T
+    dev[:, m:] = xs4[(base + own - 1) - k]
+    # the sky's ramp at each pixel, in float64 (as the deviations have always been taken)
+    k_px = k.astype(np.float64)
+    ramp = np.empty((count, 2 * m))
+    ramp[:, :m] = k_px
+    np.subtract((own - 1).astype(np.float64), k_px, out=ramp[:, m:])  # the pixels, then the ramp
+    ramp *= np.tile(slope, 2)
+    ramp += np.tile(ramp0, 2)
+    np.subtract(dev, ramp, out=dev)
     np.abs(dev, out=dev)
     first_k = np.concatenate([at_l + _SKY_PX, own - at_r])  # the search starts past the sky
-    above = (dev > level2) & (k >= first_k)
-    k0 = count - (above * (count - k)).max(axis=0)  # the first above (count: none)
+    above = dev > _float32_below(level2)
+    above &= k >= first_k
+    weight = (count - k).astype(np.min_scalar_type(count))
+    k0 = count - (above * weight).max(axis=0).astype(np.intp)  # the first above (count: none)
     inside = (k0 >= first_k) & (k0 < count)
     edge = _boundary(dev, np.minimum(k0, count - 1), +1)
     left_w = edge[:m]
