@@ -149,28 +149,41 @@ def triangulate(
         )
     seen = np.isfinite(u_observed)
     cameras_used = seen.sum(axis=1).astype(np.int64)
-    n_points = u_observed.shape[0]
+    # camera-major (C, n): each step is one NumPy call for all cameras, the cameras' matrix
+    # coefficients broadcast from (C, 1) columns; sums over the cameras run in camera order
+    observed = np.ascontiguousarray(u_observed.T)
+    seen = seen.T
+    m00, m01, m02, m10, m11, m12 = (
+        np.array([camera.matrix.ravel() for camera in cameras], dtype=np.float64)
+        .reshape(n_cameras, 6)
+        .T[:, :, np.newaxis]
+    )
+    # the radial term's constants (C', 1) of the cameras that have one
+    distorted = [c for c, camera in enumerate(cameras) if camera.k1 != 0.0]
+    u0, f, k1 = (
+        np.array([getattr(cameras[c], name) for c in distorted], dtype=np.float64)[:, np.newaxis]
+        for name in ("principal_point_px", "focal_px", "k1")
+    )
 
     # 1. linear least squares on perpendicular distances to the rays
-    zeros = np.zeros(n_points)
-    a11, a12, a22, b1, b2 = (zeros.copy() for _ in range(5))
-    for column, camera in enumerate(cameras):
-        m = camera.matrix
-        u = camera.undistort(u_observed[:, column])
-        p = m[0, 0] - u * m[1, 0]
-        q = m[0, 1] - u * m[1, 1]
-        k = u * m[1, 2] - m[0, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            norm = np.hypot(p, q)
-            p, q, k = p / norm, q / norm, k / norm
-        use = seen[:, column] & np.isfinite(p) & np.isfinite(q) & np.isfinite(k)
-        p, q, k = (np.where(use, value, 0.0) for value in (p, q, k))
-        a11 += p * p
-        a12 += p * q
-        a22 += q * q
-        b1 += p * k
-        b2 += q * k
-    x, z = _solve_2x2(a11, a12, a22, b1, b2)
+    u = observed.copy()
+    for c in distorted:
+        u[c] = cameras[c].undistort(observed[c])
+    p = m00 - u * m10
+    q = m01 - u * m11
+    k = u * m12 - m02
+    with np.errstate(divide="ignore", invalid="ignore"):
+        norm = np.hypot(p, q)
+        p, q, k = p / norm, q / norm, k / norm
+    use = seen & np.isfinite(p) & np.isfinite(q) & np.isfinite(k)
+    p, q, k = (np.where(use, value, 0.0) for value in (p, q, k))
+    x, z = _solve_2x2(
+        (p * p).sum(axis=0),
+        (p * q).sum(axis=0),
+        (q * q).sum(axis=0),
+        (p * k).sum(axis=0),
+        (q * k).sum(axis=0),
+    )
     enough = cameras_used >= 2
     x = np.where(enough, x, np.nan)
     z = np.where(enough, z, np.nan)
@@ -179,21 +192,32 @@ def triangulate(
     def normal_equations(
         x: FloatArray, z: FloatArray
     ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-        j11, j12, j22, g1, g2, sum_r2 = (zeros.copy() for _ in range(6))
-        for column, camera in enumerate(cameras):
-            u, du_dx, du_dz = camera.project_jacobian(x, z)
-            residual = u - u_observed[:, column]
-            use = seen[:, column] & np.isfinite(residual)
-            residual = np.where(use, residual, 0.0)
-            du_dx = np.where(use, du_dx, 0.0)
-            du_dz = np.where(use, du_dz, 0.0)
-            j11 += du_dx * du_dx
-            j12 += du_dx * du_dz
-            j22 += du_dz * du_dz
-            g1 += du_dx * residual
-            g2 += du_dz * residual
-            sum_r2 += residual * residual
-        return j11, j12, j22, g1, g2, sum_r2
+        """``JᵀJ``, ``Jᵀr`` and ``rᵀr`` of the reprojection in observed pixels at ``(x, z)``."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            # LineScanCamera.project_jacobian of every camera at once
+            den = m10 * x + m11 * z + m12
+            u = (m00 * x + m01 * z + m02) / den  # ideal, (C, n)
+            du_dx = (m00 - u * m10) / den
+            du_dz = (m01 - u * m11) / den
+            if distorted:
+                xn = (u[distorted] - u0) / f
+                gain = 1.0 + 3.0 * k1 * xn * xn
+                du_dx[distorted] = du_dx[distorted] * gain
+                du_dz[distorted] = du_dz[distorted] * gain
+                u[distorted] = u0 + f * xn * (1.0 + k1 * xn * xn)
+        residual = u - observed
+        use = seen & np.isfinite(residual)
+        residual = np.where(use, residual, 0.0)
+        du_dx = np.where(use, du_dx, 0.0)
+        du_dz = np.where(use, du_dz, 0.0)
+        return (
+            (du_dx * du_dx).sum(axis=0),
+            (du_dx * du_dz).sum(axis=0),
+            (du_dz * du_dz).sum(axis=0),
+            (du_dx * residual).sum(axis=0),
+            (du_dz * residual).sum(axis=0),
+            (residual * residual).sum(axis=0),
+        )
 
     for _ in range(iterations):
         j11, j12, j22, g1, g2, _ = normal_equations(x, z)

@@ -404,41 +404,41 @@ class _Sorted:
         n, k = values.shape
         by_position = np.where(np.isnan(values), np.inf, values)
         if np.all(by_position[:, 1:] >= by_position[:, :-1]):
-            # the usual case (pad_candidates sorts along the line): the stable sort's order
-            order = np.broadcast_to(np.arange(k), values.shape)
+            # the usual case (pad_candidates sorts along the line): already in order
+            slot = np.tile(np.arange(k), n)
+            ordered, left, right, polarity = (v.ravel() for v in (values, left, right, polarity))
         else:
             order = np.argsort(by_position, axis=1, kind="stable")
-        flat = (order + (np.arange(n) * k)[:, np.newaxis]).ravel()
-        ordered = values.ravel()[flat]
+            flat = (order + (np.arange(n) * k)[:, np.newaxis]).ravel()
+            slot = order.ravel()
+            ordered, left, right, polarity = (
+                v.ravel()[flat] for v in (values, left, right, polarity)
+            )
         offset = np.repeat(np.arange(n, dtype=np.float64) * (4.0 * span), k)
         keys = np.where(np.isnan(ordered), 1.5 * span, np.clip(ordered, -span, span)) + offset
-        return cls(
-            keys,
-            order.ravel(),
-            ordered,
-            left.ravel()[flat],
-            right.ravel()[flat],
-            polarity.ravel()[flat],
-            k,
-            span,
-        )
+        return cls(keys, slot, ordered, left, right, polarity, k, span)
 
     def nearest(
-        self, scan: NDArray[np.intp], query: FloatArray
+        self,
+        rows: tuple[FloatArray, NDArray[np.intp], NDArray[np.intp]],
+        query: FloatArray,
     ) -> tuple[NDArray[np.intp], FloatArray]:
         """Sorted position of the candidate nearest each query in its scan, and
         ``query - candidate``.
 
-        ``scan`` and ``query`` are ``(h,)``; the residual is NaN where the scan has no
-        candidate or the query is NaN.
+        ``rows`` holds, for each query's scan ``s``, the offset of its keys ``4 s · span``
+        and its first and last sorted positions ``s K`` and ``s K + K - 1`` (the same for
+        every camera); they and ``query`` are ``(h,)``. The residual is NaN where the scan
+        has no candidate or the query is NaN.
         """
-        k = self.k
+        offset, row_start, row_end = rows
         span = self.span
-        q = np.where(np.isnan(query), 0.0, np.clip(query, -span, span)) + scan * (4.0 * span)
+        q = np.where(np.isnan(query), 0.0, np.clip(query, -span, span)) + offset
+        # q lies within its row's keys' band and 2.5 spans clear of the others': the
+        # position is in [row_start, row_end + 1]
         position = np.searchsorted(self.keys, q)
-        row_start = scan * k
-        lower = np.minimum(np.maximum(position - 1, row_start), row_start + (k - 1))
-        upper = np.minimum(np.maximum(position, row_start), row_start + (k - 1))
+        lower = np.maximum(position - 1, row_start)
+        upper = np.minimum(position, row_end)
         keys = self.keys
         pick = np.where(np.abs(keys[upper] - q) < np.abs(keys[lower] - q), upper, lower)
         return pick, query - self.value[pick]
@@ -486,6 +486,18 @@ def covering_pairs(centres: Sequence[FloatArray], needed: int) -> list[tuple[int
         chosen.append(best)
         uncovered = {s for s in uncovered if not (best[0] in s and best[1] in s)}
     return sorted(chosen)
+
+
+def _covering_pairs(geometry: Sequence[_Geometry], needed: int) -> list[tuple[int, int]]:
+    """:func:`covering_pairs` of the cameras' centres, computed once per rig."""
+    key = (b"".join(g.centre.tobytes() for g in geometry), needed)
+    pairs = _covering.get(key)
+    if pairs is None:
+        pairs = _covering[key] = covering_pairs([g.centre for g in geometry], needed)
+    return pairs
+
+
+_covering: dict[tuple[bytes, int], list[tuple[int, int]]] = {}
 
 
 @dataclass(frozen=True)
@@ -569,8 +581,10 @@ def _enumerate_by_pair(
         pol = np.where(pol_a != 0, pol_a, pol_b)
         slot_cols: list[NDArray[np.int64] | None] = [None] * n_cameras
         inside_cols: list[NDArray[np.int64] | None] = [None] * n_cameras
-        slot_cols[a] = rows_a - scan * k
-        slot_cols[b] = rows_b - scan * k
+        row_start = scan * k
+        slot_cols[a] = rows_a - row_start
+        slot_cols[b] = rows_b - row_start
+        scan_rows = (scan * (4.0 * span), row_start, row_start + (k - 1))  # for nearest
         count = np.full(h, 2, dtype=np.int64)
         held = np.zeros(h, dtype=np.int64)
         chi2 = np.zeros(h)
@@ -597,7 +611,7 @@ def _enumerate_by_pair(
                 variance = sigma[c] ** 2 + (da * sigma[a]) ** 2 + (db * sigma[b]) ** 2
                 window = np.maximum(config.confirm_sigmas * np.sqrt(variance), config.floor_px)
                 query = np.where(gc.depth(x, z) > 0.0, uc, np.nan)
-            pick, residual = sc.nearest(scan, query)
+            pick, residual = sc.nearest(scan_rows, query)
             found = sc.slot[pick]
             with np.errstate(invalid="ignore"):
                 confirmed = np.abs(residual) <= window
@@ -804,9 +818,10 @@ def _enumerate(
                 for p, c in enumerate(others[:, j].tolist()):
                     first, last = bounds[p], bounds[p + 1]
                     position[first:last] = np.searchsorted(keys_of[c], q[first:last]) + c * n * k
+                # in [row_start, row_start + k], as in _Sorted.nearest
                 row_start = (cam_c * n + scan) * k
-                lower = np.minimum(np.maximum(position - 1, row_start), row_start + (k - 1))
-                upper = np.minimum(np.maximum(position, row_start), row_start + (k - 1))
+                lower = np.maximum(position - 1, row_start)
+                upper = np.minimum(position, row_start + (k - 1))
                 pick = np.where(np.abs(keys[upper] - q) < np.abs(keys[lower] - q), upper, lower)
                 residual = query - ordered[pick]
                 found = sorted_slot[pick]
@@ -1030,20 +1045,15 @@ def match(
         raise ValueError("matching needs two cameras at least")
     geometry = [_Geometry.of(camera) for camera in cameras]
     span = 4.0 * max(camera.pixels for camera in cameras)
-    u = np.empty(candidates.centre_px.shape)
-    left = np.empty(u.shape)
-    right = np.empty(u.shape)
+    # ideal centres and silhouette edges, (3, n, C, K): one undistortion per camera
+    observed = np.stack([candidates.centre_px, candidates.left_px, candidates.right_px])
+    ideal = np.empty(observed.shape)
     for c, camera in enumerate(cameras):
-        u[:, c, :] = _undistort(camera, candidates.centre_px[:, c, :])
-        left[:, c, :] = _undistort(camera, candidates.left_px[:, c, :])
-        right[:, c, :] = _undistort(camera, candidates.right_px[:, c, :])
+        ideal[:, :, c, :] = _undistort(camera, observed[:, :, c, :])
+    u, left, right = ideal
     needed = config.cameras_needed(n_cameras)
     every_pair = list(itertools.combinations(range(n_cameras), 2))
-    pairs = (
-        covering_pairs([g.centre for g in geometry], needed)
-        if config.covering_pairs
-        else every_pair
-    )
+    pairs = _covering_pairs(geometry, needed) if config.covering_pairs else every_pair
     others = [pair for pair in every_pair if pair not in pairs]
     polarity = candidates.polarity
     hypotheses = _enumerate(
@@ -1218,12 +1228,19 @@ def _pinhole(camera: LineScanCamera) -> LineScanCamera:
 _pinholes: dict[tuple[str, int, bytes], LineScanCamera] = {}
 
 
-def _gather(values: FloatArray, scan: IntArray, slot: IntArray) -> FloatArray:
-    """``values[scan, c, slot[:, c]]`` per camera, NaN where ``slot`` is -1: ``(m, C)``."""
-    _, n_cameras, k = values.shape
-    # one flat index: far cheaper than three broadcast ones
+def _gather(scan: IntArray, slot: IntArray, *values: FloatArray) -> list[FloatArray]:
+    """``v[scan, c, slot[:, c]]`` per camera of each ``(n, C, K)`` array of ``values``, NaN
+    where ``slot`` is -1: each ``(m, C)``."""
+    _, n_cameras, k = values[0].shape
+    # one flat index, for all the arrays: far cheaper than three broadcast ones
     index = (scan[:, np.newaxis] * n_cameras + np.arange(n_cameras)) * k + np.maximum(slot, 0)
-    return np.where(slot >= 0, values.reshape(-1)[index], np.nan)
+    missing = slot < 0
+    out = []
+    for v in values:
+        gathered = v.reshape(-1)[index]
+        gathered[missing] = np.nan
+        out.append(gathered)
+    return out
 
 
 def _triangulate_matches(
@@ -1243,10 +1260,10 @@ def _triangulate_matches(
     built from moves the hypothesis, and the other cameras can still fall in their windows
     of it; at the least-squares point the outlier's error is shared among all the cameras.
     """
-    centre = _gather(candidates.centre_px, scan, slot)
-    face_mid = 0.5 * (
-        _gather(candidates.face_left_px, scan, slot) + _gather(candidates.face_right_px, scan, slot)
+    centre, face_left, face_right = _gather(
+        scan, slot, candidates.centre_px, candidates.face_left_px, candidates.face_right_px
     )
+    face_mid = 0.5 * (face_left + face_right)
     face_views = np.isfinite(face_mid).sum(axis=1)
     from_face = (face_views >= 2) & config.contact_from_faces
     u = np.where(from_face[:, np.newaxis], face_mid, centre)
@@ -1260,14 +1277,17 @@ def _triangulate_matches(
     # leave-one-out, linearised: camera i's residual at the point the others give is
     # r_i / (1 - h_i), h_i = j_iᵀ (JᵀJ)⁻¹ j_i its leverage (j_i its row of the Jacobian)
     seen = np.isfinite(ideal)
-    residual = np.zeros(ideal.shape)
-    jx = np.zeros(ideal.shape)
-    jz = np.zeros(ideal.shape)
-    for c, camera in enumerate(pinholes):
-        u_c, du_dx, du_dz = camera.project_jacobian(result.x_mm, result.z_mm)
-        residual[:, c] = np.where(seen[:, c], u_c - ideal[:, c], 0.0)
-        jx[:, c] = np.where(seen[:, c], du_dx, 0.0)
-        jz[:, c] = np.where(seen[:, c], du_dz, 0.0)
+    # the pinholes' projection and its gradient (LineScanCamera.project_jacobian), (m, C)
+    m00, m01, m02, m10, m11, m12 = np.array(
+        [camera.matrix.ravel() for camera in pinholes], dtype=np.float64
+    ).T[:, np.newaxis, :]
+    x, z = result.x_mm[:, np.newaxis], result.z_mm[:, np.newaxis]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        den = m10 * x + m11 * z + m12
+        u_c = (m00 * x + m01 * z + m02) / den
+        residual = np.where(seen, u_c - ideal, 0.0)
+        jx = np.where(seen, (m00 - u_c * m10) / den, 0.0)
+        jz = np.where(seen, (m01 - u_c * m11) / den, 0.0)
     n11 = (jx * jx).sum(axis=1)[:, np.newaxis]
     n12 = (jx * jz).sum(axis=1)[:, np.newaxis]
     n22 = (jz * jz).sum(axis=1)[:, np.newaxis]
@@ -1348,9 +1368,10 @@ def _ray_on_plane(
     dx: FloatArray,
     dz: FloatArray,
 ) -> FloatArray:
-    """Parameter ``t`` where the ray of ``u_px`` meets the line ``(x0, z0) + t (dx, dz)``.
+    """Parameter ``t`` [mm] where the ray of ``u_px`` meets the line ``(x0, z0) + t (dx, dz)``.
 
-    The ray of ideal coordinate ``u`` is the line ``p x + q z = k`` (equation 10).
+    The ray of ideal coordinate ``u`` is the line ``p x + q z = k`` (equation 10). ``u_px``
+    is ``(..., r)``, the line's arrays ``(r,)``; ``t`` has ``u_px``'s shape.
     """
     p, q, k = _line_coefficients(camera.matrix, _undistort(camera, u_px))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -1395,8 +1416,9 @@ def face_widths_mm(
     """
     m = matches.count
     n_cameras = len(cameras)
-    left = _gather(candidates.face_left_px, matches.scan, matches.slot)
-    right = _gather(candidates.face_right_px, matches.scan, matches.slot)
+    left, right = _gather(
+        matches.scan, matches.slot, candidates.face_left_px, candidates.face_right_px
+    )
     phi = np.zeros(m) if roll_rad is None else np.asarray(roll_rad, np.float64)[matches.scan]
     dx, dz = np.cos(phi), np.sin(phi)
     per_camera = np.full((m, n_cameras), np.nan)
@@ -1410,15 +1432,16 @@ def face_widths_mm(
         if not np.any(seen):
             continue
         rows = np.flatnonzero(seen)
-        t_left = _ray_on_plane(camera, left[rows, c], x[rows], z[rows], dx[rows], dz[rows])
-        t_right = _ray_on_plane(camera, right[rows, c], x[rows], z[rows], dx[rows], dz[rows])
+        x_c, z_c = x[rows], z[rows]
+        edges = np.stack([left[rows, c], right[rows, c]])  # (2, r): both edges in one call
+        t_left, t_right = _ray_on_plane(camera, edges, x_c, z_c, dx[rows], dz[rows])
         width = np.abs(t_right - t_left)
         per_camera[rows, c] = np.where(width <= max_width_mm, width, np.nan)
         faces[rows] += 1
-        width_px = np.abs(right[rows, c] - left[rows, c])
+        width_px = np.abs(edges[1] - edges[0])
         with np.errstate(divide="ignore", invalid="ignore"):
-            ratio[rows, c] = width / (table.at(x[rows], z[rows]) * width_px)
-        _, du_dx, _ = geometry.project(x[rows], z[rows])
+            ratio[rows, c] = width / (table.at(x_c, z_c) * width_px)
+        _, du_dx, _ = geometry.project(x_c, z_c)
         resolution[rows, c] = 1.0 / np.abs(du_dx)  # ideal model: enough for a weight
     median = _row_median(per_camera)
     with np.errstate(invalid="ignore", divide="ignore"):
