@@ -6,8 +6,11 @@ processes each run with the real command in a child process into a fresh SQLite 
 reporting the child's peak resident memory (``ru_maxrss``), its wall time and its scans per
 second, and what it stored.
 
-    .venv/bin/python benchmarks/process_memory.py                    # 200 m and 2,000 m
-    .venv/bin/python benchmarks/process_memory.py --length-m 100     # 100 m and 1,000 m
+Memory reaches its plateau once the first Parquet row group (16,384 samples, about 15 blocks
+of 1024 scans) has been written; compare runs longer than that.
+
+    .venv/bin/python benchmarks/process_memory.py                    # 1,000 m and 10,000 m
+    .venv/bin/python benchmarks/process_memory.py --length-m 300     # 300 m and 3,000 m
 """
 
 from __future__ import annotations
@@ -43,7 +46,7 @@ def run_command(args: list[str], env: dict[str, str]) -> tuple[float, float, str
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--length-m", type=float, default=200.0, help="the shorter run")
+    parser.add_argument("--length-m", type=float, default=1000.0, help="the shorter run")
     parser.add_argument("--speed-kmh", type=float, default=160.0)
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as tmp:

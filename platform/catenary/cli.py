@@ -22,9 +22,12 @@ from catenary.limits import (
     select_policy,
     thresholds,
 )
+from catenary.maintenance_commands import alerts, maintenance
 from catenary.plugins import PluginRegistry
 from catenary.record import record
+from catenary.report_command import report
 from catenary.run_commands import compare, export, process
+from catenary.service_commands import notify, scheduler
 from catenary.storage.commands import db
 from catenary.wiretype import ProfileRangeError, WireType
 
@@ -259,6 +262,11 @@ cli.add_command(record)
 cli.add_command(process)
 cli.add_command(export)
 cli.add_command(compare)
+cli.add_command(notify)
+cli.add_command(scheduler)
+cli.add_command(report)
+cli.add_command(alerts)
+cli.add_command(maintenance)
 
 
 def main(argv: list[str] | None = None) -> None:

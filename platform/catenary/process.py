@@ -20,6 +20,12 @@
    (versioned), the run and its span measurements. The samples file is named after the run
    and moved into place inside that transaction; a failure anywhere leaves neither a row
    nor a file behind.
+6. **Alerts**: once the run is committed, the wear-limit policy (``[limits]``, checked in
+   step 1) is evaluated on the spans it measured (:mod:`catenary.alerts`), in a transaction
+   of its own with the new alerts' notifications queued (:mod:`catenary.notify`; ``catenary
+   notify deliver`` or the scheduler sends them), and the new alerts are announced
+   (``catenary_alert_raised``); without a policy
+   the result says so.
 
 Memory stays flat whatever the run's length: blocks of scans, bounded buffers, Parquet row
 groups (``benchmarks/process_memory.py``).
@@ -40,10 +46,20 @@ import numpy as np
 import pyarrow as pa
 from sqlalchemy import delete
 
+from catenary.alerts import (
+    Evaluation,
+    announce_alerts,
+    check_policy,
+    configured_policy,
+    evaluate_alerts,
+    horizon_days,
+)
 from catenary.chainage import ChainageAlignment, TurningPointFinder, align_to_register
 from catenary.config import Settings
 from catenary.domain import RunHeader, WireObservations
 from catenary.errors import UserError
+from catenary.limits import LimitPolicy
+from catenary.notify import notification_config, queue_notifications
 from catenary.pipeline import MeasurementChain, TrackSamples
 from catenary.plugins import PluginRegistry
 from catenary.register import TrackRegister, read_register
@@ -91,6 +107,7 @@ class ProcessRequest:
     track: str | None = None
     processor: str = DEFAULT_PROCESSOR
     replace: bool = False
+    policy: LimitPolicy | None = None  # the alerts' wear limits (default: the config's)
 
 
 @dataclass(frozen=True)
@@ -113,6 +130,8 @@ class ProcessResult:
     faulty: int = 0
     minimum: SpanMeasurement | None = None
     samples_path: Path | None = None
+    alerts: Evaluation | None = None
+    alerts_note: str = ""  # why alerts were not evaluated
 
 
 @dataclass(frozen=True)
@@ -126,6 +145,8 @@ class _Inputs:
     wire_types: dict[str, WireType]
     rig_text: str
     source_sha256: str
+    policy: LimitPolicy | None
+    horizon_days: float
 
 
 def file_sha256(path: Path) -> str:
@@ -157,7 +178,7 @@ def _line_and_track(
     return line, track
 
 
-def _check_inputs(request: ProcessRequest, registry: PluginRegistry) -> _Inputs:
+def _check_inputs(request: ProcessRequest, settings: Settings, registry: PluginRegistry) -> _Inputs:
     with open_run(request.run_path) as run:
         header = run.header
     if header.scans == 0:
@@ -184,6 +205,9 @@ def _check_inputs(request: ProcessRequest, registry: PluginRegistry) -> _Inputs:
         raise UserError(f"{request.rig_path}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise UserError(f"{request.rig_path}: cannot read the rig calibration ({exc})") from None
+    policy = request.policy or configured_policy(settings, registry.limit_policies())
+    if policy is not None:
+        check_policy(policy, wire_types)
     return _Inputs(
         header=header,
         line=line,
@@ -192,6 +216,8 @@ def _check_inputs(request: ProcessRequest, registry: PluginRegistry) -> _Inputs:
         wire_types=wire_types,
         rig_text=rig_text,
         source_sha256=file_sha256(request.run_path),
+        policy=policy,
+        horizon_days=horizon_days(settings),
     )
 
 
@@ -366,7 +392,7 @@ def process_run(
     on_start: Callable[[RunHeader], None] = lambda header: None,
 ) -> ProcessResult:
     """Process one run file into the database (module docstring); see ``ProcessResult``."""
-    inputs = _check_inputs(request, registry)
+    inputs = _check_inputs(request, settings, registry)
     processor, geometry = _processor(request, registry, settings)
     with open_database(settings.database_url) as engine:
         with session_scope(engine) as session:
@@ -454,6 +480,18 @@ def process_run(
                 if path is not None:
                     path.unlink(missing_ok=True)
             raise
+        alerts = None
+        if inputs.policy is not None:
+            with session_scope(engine) as session:
+                alerts = evaluate_alerts(
+                    session,
+                    inputs.policy,
+                    inputs.wire_types,
+                    run_ids=[run_id],
+                    horizon_days=inputs.horizon_days,
+                )
+                queue_notifications(session, notification_config(settings))
+            announce_alerts(engine, registry, alerts.new)
     registry.run_stored(run_id, settings.database_url)
     minimum = min(span_rows, key=lambda r: r.min_residual_thickness_mm, default=None)
     return ProcessResult(
@@ -473,4 +511,8 @@ def process_run(
         faulty=faulty,
         minimum=minimum,
         samples_path=final,
+        alerts=alerts,
+        alerts_note=""
+        if alerts is not None
+        else "not evaluated: no wear-limit policy ([limits] policy in the config)",
     )

@@ -4,6 +4,11 @@ Columns ``line,track,mast,chainage_m,wire_type`` and optionally ``design_stagger
 columns are ignored. A span runs from one mast to the next by chainage; its wire type is that
 of the mast at its start. Every problem is a one-line ``FormatError`` naming the file, the
 row (its line number in the file) and the field.
+
+Extension (README, "File formats"): an optional column ``anchor_section``, a code naming the
+anchor section (tensioning length) each mast belongs to; a span is in the section of its start
+mast, and a section's masts follow one another along the track. An empty field: the mast is in
+no section.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ class TrackRegister:
     chainage_m: FloatArray
     wire_type: tuple[str, ...]
     design_stagger_mm: FloatArray  # NaN where not given
+    anchor_section: tuple[str | None, ...] | None = None  # None: the register has no such column
 
     @property
     def masts(self) -> int:
@@ -75,6 +81,24 @@ def _number(path: Path, row: int, field: str, text: str, *, optional: bool = Fal
     return value
 
 
+def _check_sections(
+    file: Path, line: str, track: str, codes: list[str], section: tuple[str | None, ...]
+) -> None:
+    """An anchor section's masts follow one another along the track (by chainage)."""
+    seen: set[str] = set()
+    for k, code in enumerate(section):
+        if code is None or (k > 0 and section[k - 1] == code):
+            continue
+        if code in seen:
+            raise FormatError(
+                file,
+                f"mast {codes[k]!r} of line {line!r} track {track!r}: anchor_section {code!r} "
+                f"resumes after mast {codes[k - 1]!r}, which is not in it (a section's masts "
+                "follow one another)",
+            )
+        seen.add(code)
+
+
 def read_register(path: str | Path, wire_types: Iterable[str] | None = None) -> MastRegister:
     """Read a mast register CSV.
 
@@ -89,7 +113,8 @@ def read_register(path: str | Path, wire_types: Iterable[str] | None = None) -> 
     ------
     FormatError
         A missing column, an empty or non-numeric field, a mast code given twice for one
-        track, two masts at the same chainage, an unknown wire type.
+        track, two masts at the same chainage, an unknown wire type, an anchor section whose
+        masts do not follow one another.
     """
     file = Path(path)
     known = None if wire_types is None else set(wire_types)
@@ -102,10 +127,11 @@ def read_register(path: str | Path, wire_types: Iterable[str] | None = None) -> 
                 raise FormatError(
                     file,
                     f"no column {missing[0]!r} (a mast register has columns "
-                    f"{','.join(REQUIRED_COLUMNS)}[,design_stagger_mm])",
+                    f"{','.join(REQUIRED_COLUMNS)}[,design_stagger_mm][,anchor_section])",
                 )
             reader.fieldnames = columns
-            rows: dict[tuple[str, str], list[tuple[str, float, str, float]]] = {}
+            sections = "anchor_section" in columns
+            rows: dict[tuple[str, str], list[tuple[str, float, str, float, str | None]]] = {}
             for row in reader:
                 number = reader.line_num
                 values = {k: (v or "").strip() for k, v in row.items() if k is not None}
@@ -127,8 +153,9 @@ def read_register(path: str | Path, wire_types: Iterable[str] | None = None) -> 
                     optional=True,
                 )
                 key = (values["line"], values["track"])
+                section = values.get("anchor_section") or None
                 rows.setdefault(key, []).append(
-                    (values["mast"], chainage, values["wire_type"], stagger)
+                    (values["mast"], chainage, values["wire_type"], stagger, section)
                 )
     except FileNotFoundError:
         raise UserError(f"{file}: no such file") from None
@@ -154,6 +181,8 @@ def read_register(path: str | Path, wire_types: Iterable[str] | None = None) -> 
             raise FormatError(
                 file, f"masts {a!r} and {b!r} of line {line!r} track {track!r} at one chainage"
             )
+        section = tuple(m[4] for m in masts)
+        _check_sections(file, line, track, codes, section)
         tracks[(line, track)] = TrackRegister(
             line=line,
             track=track,
@@ -161,5 +190,6 @@ def read_register(path: str | Path, wire_types: Iterable[str] | None = None) -> 
             chainage_m=chainages,
             wire_type=tuple(m[2] for m in masts),
             design_stagger_mm=np.array([m[3] for m in masts]),
+            anchor_section=section if sections else None,
         )
     return MastRegister(path=file, tracks=tracks)

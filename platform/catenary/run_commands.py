@@ -14,13 +14,14 @@ import numpy as np
 import pyarrow as pa
 from sqlalchemy import select
 
-from catenary.compare import RunProfile, compare_profiles
+from catenary.compare import compare_profiles
 from catenary.config import Settings
 from catenary.domain import RunHeader
 from catenary.errors import UserError
-from catenary.samples import export_schema, export_table, read_sample_batches, sample_tables
+from catenary.run_samples import run_profile, samples_file
+from catenary.samples import export_schema, export_table, sample_tables
 from catenary.storage.database import open_database, session_scope
-from catenary.storage.models import Run, SpanMeasurement
+from catenary.storage.models import SpanMeasurement
 from catenary.storage.runs import find_run
 
 if TYPE_CHECKING:
@@ -112,6 +113,12 @@ def echo_summary(result: ProcessResult) -> None:
     click.echo(f"samples    {result.samples} in {result.samples_path}{extra}")
     if result.replaced:
         click.echo("replaced   the run's earlier results")
+    if result.alerts is not None:
+        click.echo(f"alerts     {result.alerts.summary()} (policy {result.alerts.policy})")
+        for note in result.alerts.notes:
+            click.echo(f"           {note}")
+    else:
+        click.echo(f"alerts     {result.alerts_note}")
     click.echo(f"stored as run {result.run_id}")
 
 
@@ -195,13 +202,6 @@ def process(
     echo_summary(result)
 
 
-def _samples_file(settings: Settings, run: Run) -> Path:
-    if not run.samples_path:
-        raise UserError(f"run {run.id} has no samples file")
-    path = Path(run.samples_path)
-    return path if path.is_absolute() else settings.data_dir / path
-
-
 _SPAN_SCHEMA = pa.schema(
     [
         (
@@ -257,25 +257,9 @@ def export(
             )
             written = export_table(iter([_span_table(rows)]), _SPAN_SCHEMA, output)
         else:
-            path = _samples_file(settings, run)
+            path = samples_file(settings, run)
             written = export_table(sample_tables(path), export_schema(path), output)
     click.echo(f"{written} {what} of run {run.id} written to {output}")
-
-
-def _profile(settings: Settings, run: Run) -> RunProfile:
-    columns = ["chainage_m", "wire", "stagger_mm", "residual_thickness_mm", "vehicle_fault"]
-    parts = list(read_sample_batches(_samples_file(settings, run), columns))
-    values = {c: np.concatenate([p[c] for p in parts]) for c in columns} if parts else None
-    if values is None:
-        raise UserError(f"run {run.id} has no samples")
-    good = ~values["vehicle_fault"]
-    sign = 1.0 if run.direction == "increasing" else -1.0  # the line frame: right of increasing
-    return RunProfile(
-        chainage_m=values["chainage_m"][good],
-        wire=values["wire"][good].astype(np.int64),
-        stagger_mm=sign * values["stagger_mm"][good],
-        residual_thickness_mm=values["residual_thickness_mm"][good],
-    )
 
 
 @click.command("compare")
@@ -290,7 +274,7 @@ def compare(ctx: click.Context, run_a: str, run_b: str, database_url: str | None
         a, b = find_run(session, run_a), find_run(session, run_b)
         if a.track_id != b.track_id:
             raise UserError(f"runs {a.id} and {b.id} are on different tracks")
-        profiles = _profile(settings, a), _profile(settings, b)
+        profiles = run_profile(settings, a), run_profile(settings, b)
     try:
         comparison = compare_profiles(*profiles)
     except UserError as exc:

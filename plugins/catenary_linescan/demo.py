@@ -4,7 +4,9 @@ Simulates a few hundred metres of line with an overlap on the demo rig (run file
 truth, mast register, calibration captures), calibrates the rig from the captures, migrates
 the database (the embedded SQLite default unless ``--db`` says otherwise), processes the run
 into it as ``catenary process`` does (aligned to the mast register; the demo run again is a
-new recording, so a new run), and writes the run's spans as a CSV report beside the files.
+new recording, so a new run), evaluates the wear limits on it (the config's ``[limits]``
+policy, else the preset ``DEMO_POLICY``), and writes the run report (HTML, the ``run``
+reporter) and the run's spans (CSV) beside the files.
 """
 
 from __future__ import annotations
@@ -14,14 +16,20 @@ from pathlib import Path
 
 import click
 
+from catenary.alerts import configured_policy
 from catenary.cli import app_of
+from catenary.limits import thresholds
 from catenary.process import ProcessRequest, process_run
+from catenary.report_command import report_request
 from catenary.run_commands import echo_summary, export
 from catenary.storage import migrate
 from catenary.storage.database import mask_url, open_database
 from catenary_linescan.calibrate import calibrate
 from catenary_linescan.simulator.command import simulate
 from catenary_linescan.simulator.settings import DEMO_RIG_PATH
+
+DEMO_POLICY = "manufacturer-30pct"
+"""The wear limits without a configured policy (the simulated wire is fairly new: no alert)."""
 
 
 @click.command("demo")
@@ -36,9 +44,13 @@ from catenary_linescan.simulator.settings import DEMO_RIG_PATH
 @click.option("--seed", type=int, default=7, show_default=True, help="Scene, motion and noise.")
 @click.pass_context
 def demo(ctx: click.Context, out: Path, length_m: float, seed: int) -> None:
-    """Simulate a run on the demo rig, calibrate the rig, and store it in the database."""
+    """Simulate a run on the demo rig, calibrate the rig, process the run, write its reports."""
     started = time.monotonic()
-    settings = app_of(ctx).settings
+    app = app_of(ctx)
+    settings = app.settings
+    presets = app.registry.limit_policies()
+    configured = configured_policy(settings, presets)
+    policy = configured or presets[DEMO_POLICY]
     out.mkdir(parents=True, exist_ok=True)
     run, captures, rig_path = out / "run.h5", out / "captures.h5", out / "rig.toml"
 
@@ -76,15 +88,18 @@ def demo(ctx: click.Context, out: Path, length_m: float, seed: int) -> None:
     with open_database(settings.database_url, migrated=False) as engine:
         migrate.upgrade(engine)
     masts = run.with_suffix(".masts.csv")
-    request = ProcessRequest(run_path=run, rig_path=rig_path, register_path=masts)
-    result = process_run(request, settings, app_of(ctx).registry)
+    request = ProcessRequest(run_path=run, rig_path=rig_path, register_path=masts, policy=policy)
+    result = process_run(request, settings, app.registry)
     echo_summary(result)
 
-    click.echo("4/4 writing the report")
-    report = out / "spans.csv"
+    click.echo("4/4 writing the reports")
+    spans = out / "spans.csv"
     ctx.invoke(
-        export, run_reference=str(result.run_id), what="spans", output=report, database_url=None
+        export, run_reference=str(result.run_id), what="spans", output=spans, database_url=None
     )
+    preset = None if configured else DEMO_POLICY  # None: the config's own
+    request = report_request(settings, app.registry, runs=(str(result.run_id),), policy=preset)
+    report = app.registry.reporters()["run"].write(request, out / "report.html")
     click.echo("")
     click.echo(f"run file          {run} (truth: {run.with_suffix('.truth.h5').name})")
     click.echo(f"mast register     {masts}")
@@ -92,5 +107,15 @@ def demo(ctx: click.Context, out: Path, length_m: float, seed: int) -> None:
     click.echo(f"rig calibration   {rig_path}")
     click.echo(f"database          {mask_url(settings.database_url)} (run {result.run_id})")
     click.echo(f"samples           {result.samples_path}")
-    click.echo(f"report            {report} (one row per span and wire)")
+    click.echo(f"report            {report} (the run report: open it in a browser)")
+    click.echo(f"spans             {spans} (one row per span and wire)")
+    raised = len(result.alerts.new) if result.alerts else 0
+    why = " (catenary alerts list)"
+    minimum = result.minimum
+    if raised == 0 and minimum is not None:
+        wire = app.registry.wire_types()[minimum.wire_type]
+        limits = [t.residual_thickness_mm for t in thresholds(wire, policy) if t.scope == "local"]
+        limit = f", the first limit {max(limits):.2f} mm" if limits else ""
+        why = f": the thinnest wire has {minimum.min_residual_thickness_mm:.2f} mm left{limit}"
+    click.echo(f"alerts            {raised} new, policy {policy.name}{why}")
     click.echo(f"done in {time.monotonic() - started:.0f} s")

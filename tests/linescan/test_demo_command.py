@@ -32,6 +32,9 @@ def test_demo_simulates_calibrates_processes_and_reports(tmp_path: Path) -> None
         assert run.rig_calibration_id == stored.id and run.status == "complete"
         spans = len(run.span_measurements)
     assert spans >= 1
+    assert (
+        "<svg" in (out / "report.html").read_text() or "base64" in (out / "report.html").read_text()
+    )
     report = (out / "spans.csv").read_text().splitlines()
     assert report[0].startswith('"span","mast_from"') and len(report) == spans + 1
     assert f"database          sqlite:///{database} (run 1)" in result.output

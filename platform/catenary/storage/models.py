@@ -151,7 +151,8 @@ class Track(Base):
 
 class Mast(Base):
     """A mast of the register; a span runs from one mast to the next by chainage and has the
-    wire type of the mast at its start."""
+    wire type and the anchor section (``anchor_section``, a code; None: not given) of the mast at
+    its start."""
 
     __tablename__ = "masts"
     __table_args__ = (
@@ -165,6 +166,7 @@ class Mast(Base):
     chainage_m: Mapped[float] = mapped_column(Float)
     wire_type: Mapped[str] = mapped_column(String(CODE_LENGTH))
     design_stagger_mm: Mapped[float | None] = mapped_column(Float)
+    anchor_section: Mapped[str | None] = mapped_column(String(CODE_LENGTH))
 
     track: Mapped[Track] = relationship(back_populates="masts")
 
@@ -230,6 +232,7 @@ class Run(Base):
         # the target of span_measurements' (run_id, track_id) foreign key
         UniqueConstraint("id", "track_id"),
         Index(None, "line_id", "track_id", "started_at"),
+        Index(None, "track_id", "started_at"),  # the alert evaluation, a track at a time
         CheckConstraint(one_of("direction", RUN_DIRECTIONS), name="direction"),
         CheckConstraint(one_of("status", RUN_STATUSES), name="status"),
         CheckConstraint("scans >= 0", name="scans_not_negative"),
@@ -424,7 +427,11 @@ class Alert(Base):
 
 
 class AlertNotification(Base):
-    """The delivery of one alert by one notifier, retried until sent."""
+    """The delivery of one alert to one notification channel, retried until sent.
+
+    ``notifier`` holds the channel's name (``catenary.notify``); ``next_attempt_at`` is when it
+    is next due (None: at once, while attempts remain; a failed one with None has used them all).
+    """
 
     __tablename__ = "alert_notifications"
     __table_args__ = (
@@ -440,6 +447,7 @@ class AlertNotification(Base):
     status: Mapped[str] = mapped_column(String(16), default="pending")
     attempts: Mapped[int] = mapped_column(Integer, default=0)
     last_error: Mapped[str | None] = mapped_column(Text)
+    next_attempt_at: Mapped[datetime | None]
     updated_at: Mapped[datetime] = mapped_column(default=utc_now, onupdate=utc_now)
 
     alert: Mapped[Alert] = relationship(back_populates="notifications")

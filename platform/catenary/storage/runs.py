@@ -32,39 +32,33 @@ def register_track(session: Session, line_code: str, track_code: str) -> tuple[L
 def track_masts(session: Session, track: Track, register: TrackRegister) -> int:
     """Bring the track's masts in line with the register; returns how many changed.
 
-    The register is the authority: a new mast is added, a mast whose chainage, wire type or
-    design stagger differ is updated; masts not in this register are kept (a register file
-    may hold a part of the track). Span measurements keep their own mast codes and
-    chainages, so earlier runs are unchanged.
+    The register is the authority: a new mast is added, a mast whose chainage, wire type,
+    design stagger or anchor section differ is updated (the anchor section only when the
+    register has that column); masts not in this register are kept (a register file may hold a
+    part of the track). Span measurements keep their own mast codes and chainages, so earlier
+    runs are unchanged.
     """
     stored = {m.code: m for m in session.scalars(select(Mast).where(Mast.track_id == track.id))}
+    sections = register.anchor_section
     changed = 0
-    for code, chainage, wire_type, stagger in zip(
-        register.mast,
-        register.chainage_m.tolist(),
-        register.wire_type,
-        register.design_stagger_mm.tolist(),
-        strict=True,
+    for k, (code, chainage, wire_type, stagger) in enumerate(
+        zip(
+            register.mast,
+            register.chainage_m.tolist(),
+            register.wire_type,
+            register.design_stagger_mm.tolist(),
+            strict=True,
+        )
     ):
         design = None if stagger != stagger else stagger  # NaN: not given
         mast = stored.get(code)
         if mast is None:
-            session.add(
-                Mast(
-                    track=track,
-                    code=code,
-                    chainage_m=chainage,
-                    wire_type=wire_type,
-                    design_stagger_mm=design,
-                )
-            )
-            changed += 1
-        elif (mast.chainage_m, mast.wire_type, mast.design_stagger_mm) != (
-            chainage,
-            wire_type,
-            design,
-        ):
-            mast.chainage_m, mast.wire_type, mast.design_stagger_mm = chainage, wire_type, design
+            mast = Mast(track=track, code=code)
+            session.add(mast)
+        section = mast.anchor_section if sections is None else sections[k]
+        values = (chainage, wire_type, design, section)
+        if (mast.chainage_m, mast.wire_type, mast.design_stagger_mm, mast.anchor_section) != values:
+            mast.chainage_m, mast.wire_type, mast.design_stagger_mm, mast.anchor_section = values
             changed += 1
     session.flush()
     return changed

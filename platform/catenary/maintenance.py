@@ -1,0 +1,142 @@
+"""Maintenance actions: what a repair covers, and recording one (which resolves its alerts).
+
+A repair (``REPAIR_KINDS``: the wire replaced, reinforced or spliced) changes the worn
+profile, so it ends the alerts on the wire it covers and starts that wire's history afresh
+(only runs after it count, for thresholds and forecasts alike); an inspection or an
+adjustment is recorded and changes nothing. An action covers
+
+- a **span**: when it touches it, i.e. overlaps it by more than ``COVER_TOLERANCE_M`` or lies
+  inside it (a splice at one point covers the span it is in, a replacement from mast 14 to
+  mast 22 the spans between them but not those beyond either mast);
+- an **anchor section**: when it contains it, to ``COVER_TOLERANCE_M`` at either end;
+
+and the wire it names (``wire``: the wire's position in the span, see ``catenary.history``), or
+every wire when it names none.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import datetime
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from catenary.errors import UserError
+from catenary.storage.models import MAINTENANCE_KINDS, Alert, MaintenanceAction, Track
+
+__all__ = [
+    "COVER_TOLERANCE_M",
+    "REPAIR_KINDS",
+    "Recorded",
+    "contains",
+    "record_maintenance",
+    "touches",
+]
+
+REPAIR_KINDS = ("wire_replaced", "reinforced", "spliced")
+"""Kinds of action that renew the worn profile: they resolve alerts and restart histories."""
+
+COVER_TOLERANCE_M = 0.5
+"""How far an action's end may miss a span's or section's end [m] (chainages aligned to the
+register agree to a few decimetres)."""
+
+
+def touches(
+    from_m: ArrayLike, to_m: ArrayLike, start_m: ArrayLike, end_m: ArrayLike
+) -> NDArray[np.bool_]:
+    """Whether actions ``[from_m, to_m]`` touch spans ``[start_m, end_m]`` (broadcast) [m]."""
+    a, b = np.asarray(from_m, dtype=np.float64), np.asarray(to_m, dtype=np.float64)
+    start, end = np.asarray(start_m, dtype=np.float64), np.asarray(end_m, dtype=np.float64)
+    return np.asarray((a < end - COVER_TOLERANCE_M) & (b > start + COVER_TOLERANCE_M))
+
+
+def contains(
+    from_m: ArrayLike, to_m: ArrayLike, start_m: ArrayLike, end_m: ArrayLike
+) -> NDArray[np.bool_]:
+    """Whether actions ``[from_m, to_m]`` contain stretches ``[start_m, end_m]`` (broadcast)."""
+    a, b = np.asarray(from_m, dtype=np.float64), np.asarray(to_m, dtype=np.float64)
+    start, end = np.asarray(start_m, dtype=np.float64), np.asarray(end_m, dtype=np.float64)
+    return np.asarray((a <= start + COVER_TOLERANCE_M) & (b >= end - COVER_TOLERANCE_M))
+
+
+@dataclass(frozen=True)
+class Recorded:
+    """An action recorded and the ids of the alerts it resolved."""
+
+    action: MaintenanceAction
+    resolved: tuple[int, ...]
+
+
+def record_maintenance(
+    session: Session,
+    track: Track,
+    kind: str,
+    from_m: float,
+    to_m: float,
+    performed_at: datetime,
+    recorded_by: str,
+    *,
+    now: datetime,
+    mast_from: str | None = None,
+    mast_to: str | None = None,
+    wire: int | None = None,
+    note: str | None = None,
+) -> Recorded:
+    """Add a maintenance action on ``track`` from ``from_m`` to ``to_m`` [m]; a repair resolves
+    the open and acknowledged alerts it covers (``resolved_at = now``).
+
+    Raises ``UserError`` for an unknown kind, a negative wire or an empty name.
+    """
+    if kind not in MAINTENANCE_KINDS:
+        raise UserError(
+            f"unknown maintenance kind {kind!r} (known: {', '.join(MAINTENANCE_KINDS)})"
+        )
+    if wire is not None and wire < 0:
+        raise UserError(f"wire must be 0 or more, not {wire}")
+    if not recorded_by.strip():
+        raise UserError("give who did the work (--by NAME)")
+    low, high = sorted((float(from_m), float(to_m)))
+    action = MaintenanceAction(
+        track=track,
+        kind=kind,
+        from_chainage_m=low,
+        to_chainage_m=high,
+        mast_from=mast_from,
+        mast_to=mast_to,
+        wire=wire,
+        performed_at=performed_at,
+        recorded_by=recorded_by.strip(),
+        note=note,
+    )
+    session.add(action)
+    session.flush()
+    if kind not in REPAIR_KINDS:
+        return Recorded(action=action, resolved=())
+    query = select(Alert).where(
+        Alert.track_id == track.id,
+        Alert.status.in_(("open", "acknowledged")),
+        Alert.start_chainage_m < high + COVER_TOLERANCE_M,
+        Alert.end_chainage_m > low - COVER_TOLERANCE_M,
+    )
+    if wire is not None:
+        query = query.where(Alert.wire == wire)
+    candidates = list(session.scalars(query.order_by(Alert.id)))
+    section = np.array(
+        [(a.details or {}).get("scope") == "anchor_section_average" for a in candidates]
+    )
+    starts = np.array([a.start_chainage_m for a in candidates])
+    ends = np.array([a.end_chainage_m for a in candidates])
+    covered = np.where(section, contains(low, high, starts, ends), touches(low, high, starts, ends))
+    resolved = []
+    for alert, hit in zip(candidates, covered.tolist(), strict=True):
+        if hit:
+            alert.status = "resolved"
+            alert.resolved_at = now
+            alert.resolved_by_action = action
+            alert.details = {**(alert.details or {}), "resolution": f"{kind} (maintenance)"}
+            resolved.append(alert.id)
+    session.flush()
+    return Recorded(action=action, resolved=tuple(resolved))

@@ -1,0 +1,335 @@
+"""``catenary alerts`` (evaluate, list, ack, resolve) and ``catenary maintenance record``.
+
+Each command is one transaction: an error leaves nothing written. The hooks
+``catenary_alert_raised`` are called for each new alert once it is committed.
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import click
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from catenary.alerts import (
+    acknowledge_alert,
+    announce_alerts,
+    configured_policy,
+    evaluate_alerts,
+    horizon_days,
+    list_alerts,
+    resolve_alert,
+)
+from catenary.errors import UserError
+from catenary.limits import LEVELS, LimitPolicy, load_policies, select_policy
+from catenary.maintenance import REPAIR_KINDS, record_maintenance
+from catenary.run_commands import database_option
+from catenary.storage.database import open_database, session_scope
+from catenary.storage.models import ALERT_STATUSES, MAINTENANCE_KINDS, Alert, Line, Mast, Track
+from catenary.storage.runs import find_run
+
+if TYPE_CHECKING:
+    from catenary.cli import App
+
+__all__ = ["alerts", "maintenance"]
+
+
+def _app(ctx: click.Context, database_url: str | None) -> tuple[App, str]:
+    from catenary.cli import app_of  # the CLI module imports this one
+
+    app = app_of(ctx)
+    return app, database_url or app.settings.database_url
+
+
+def _policy(app: App, name: str | None, policy_file: Path | None) -> LimitPolicy:
+    """The policy named on the command line (a preset, or one of ``policy_file``), else the
+    config's ``[limits]``."""
+    presets = app.registry.limit_policies()
+    if policy_file is not None:
+        policies = load_policies(policy_file)
+        if name is None and len(policies) != 1:
+            known = ", ".join(sorted(policies))
+            raise UserError(
+                f"{policy_file}: holds several policies, choose one with --policy ({known})"
+            )
+        return select_policy(policies, name or next(iter(policies)), origin=str(policy_file))
+    if name is not None:
+        return select_policy(presets, name, origin="wear-limit presets")
+    policy = configured_policy(app.settings, presets)
+    if policy is None:
+        raise UserError(
+            'no wear-limit policy: set [limits] policy = "NAME" in the config, or give --policy '
+            f"(presets: {', '.join(sorted(presets))})"
+        )
+    return policy
+
+
+def _now() -> datetime:
+    return datetime.now(UTC)
+
+
+@click.group("alerts")
+def alerts() -> None:
+    """Maintenance alerts: evaluate the wear limits, list, acknowledge and resolve alerts."""
+
+
+@alerts.command("evaluate")
+@click.option(
+    "--run", "run_reference", metavar="ID", help="The spans one run measured (or 'latest')."
+)
+@click.option("--all", "everything", is_flag=True, help="Every span of the fleet.")
+@click.option(
+    "--policy", "policy_name", metavar="NAME", help="Wear-limit policy (default: [limits])."
+)
+@click.option(
+    "--policy-file",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="A policy TOML file of your own (default: the presets).",
+)
+@database_option
+@click.pass_context
+def evaluate_command(
+    ctx: click.Context,
+    run_reference: str | None,
+    everything: bool,
+    policy_name: str | None,
+    policy_file: Path | None,
+    database_url: str | None,
+) -> None:
+    """Evaluate the wear limits and forecasts: raise, update and resolve alerts."""
+    if (run_reference is None) == (not everything):
+        raise click.UsageError("give --run ID or --all")
+    app, url = _app(ctx, database_url)
+    policy = _policy(app, policy_name, policy_file)
+    horizon = horizon_days(app.settings)
+    with open_database(url) as engine:
+        with session_scope(engine) as session:
+            run_ids = None if run_reference is None else [find_run(session, run_reference).id]
+            result = evaluate_alerts(
+                session,
+                policy,
+                app.registry.wire_types(),
+                run_ids=run_ids,
+                now=_now(),
+                horizon_days=horizon,
+            )
+        announce_alerts(engine, app.registry, result.new)
+    scope = "every span" if run_ids is None else f"run {run_ids[0]}"
+    click.echo(
+        f"alerts     policy {policy.name}, {scope}: {result.spans} span-wires, "
+        f"{result.sections} anchor sections, horizon {horizon:g} days"
+    )
+    click.echo(f"           {result.summary()}")
+    for note in result.notes:
+        click.echo(f"note       {note}")
+
+
+def _where(alert: Alert) -> str:
+    if alert.mast_from is not None:
+        return f"masts {alert.mast_from} to {alert.mast_to}"
+    return f"{alert.start_chainage_m:.1f} to {alert.end_chainage_m:.1f} m"
+
+
+def _what(alert: Alert) -> str:
+    details = alert.details or {}
+    if alert.kind == "forecast":
+        low, high = details.get("reach_earliest"), details.get("reach_latest")
+        span = f"{(low or '-')[:10]} to {(high or 'never')[:10]}"
+        return (
+            f"reaches {alert.threshold:.2f} mm about {str(details.get('reach_at'))[:10]} "
+            f"({span}), wear {details.get('wear_rate_mm_per_year', 0.0):.3f} "
+            f"+- {details.get('wear_rate_se_mm_per_year', 0.0):.3f} mm/year"
+        )
+    scope = "anchor section average" if details.get("anchor_section") else "minimum"
+    return f"{scope} {alert.value:.2f} mm, limit {alert.threshold:.2f} mm"
+
+
+@alerts.command("list")
+@click.option(
+    "--status",
+    type=click.Choice(["active", *ALERT_STATUSES, "all"]),
+    default="active",
+    show_default=True,
+    help="active: open and acknowledged.",
+)
+@click.option("--line", metavar="L", help="Only this line.")
+@click.option(
+    "--level", "levels", multiple=True, type=click.Choice(LEVELS), help="Only these levels."
+)
+@database_option
+@click.pass_context
+def list_command(
+    ctx: click.Context,
+    status: str,
+    line: str | None,
+    levels: tuple[str, ...],
+    database_url: str | None,
+) -> None:
+    """List alerts, most severe first, then by line, track and chainage."""
+    _, url = _app(ctx, database_url)
+    with open_database(url) as engine, session_scope(engine) as session:
+        found = list_alerts(session, status=status, line=line, levels=levels)
+        for alert in found:
+            section = (alert.details or {}).get("anchor_section")
+            click.echo(
+                f"{alert.id:>6}  {alert.level:<8} {alert.kind:<9} {alert.status:<12} "
+                f"{alert.track.line.code}/{alert.track.code}  {_where(alert)}"
+                f"{f' (section {section})' if section else ''}, wire {alert.wire}: "
+                f"{_what(alert)}; {(alert.details or {}).get('action', alert.rule)}"
+            )
+    click.echo(f"{len(found)} alert(s)")
+
+
+@alerts.command("ack")
+@click.argument("alert_id", metavar="ID", type=int)
+@click.option("--by", "by", required=True, metavar="NAME", help="Who acknowledges it.")
+@database_option
+@click.pass_context
+def ack_command(ctx: click.Context, alert_id: int, by: str, database_url: str | None) -> None:
+    """Acknowledge alert ID (open -> acknowledged)."""
+    _, url = _app(ctx, database_url)
+    with open_database(url) as engine, session_scope(engine) as session:
+        alert = acknowledge_alert(session, alert_id, by, _now())
+    click.echo(f"alert {alert.id} acknowledged by {alert.acknowledged_by}")
+
+
+@alerts.command("resolve")
+@click.argument("alert_id", metavar="ID", type=int)
+@click.option("--by", "by", required=True, metavar="NAME", help="Who resolves it.")
+@click.option("--note", help="Why (kept in the alert's details).")
+@database_option
+@click.pass_context
+def resolve_command(
+    ctx: click.Context, alert_id: int, by: str, note: str | None, database_url: str | None
+) -> None:
+    """Resolve alert ID by hand (a later run showing the condition raises a new alert)."""
+    _, url = _app(ctx, database_url)
+    with open_database(url) as engine, session_scope(engine) as session:
+        alert = resolve_alert(session, alert_id, by, _now(), note=note)
+    click.echo(f"alert {alert.id} resolved by {by}")
+
+
+@click.group("maintenance")
+def maintenance() -> None:
+    """Maintenance actions on the wire: record work done (resolves the alerts it covers)."""
+
+
+def _track(session: Session, line: str, track: str) -> Track:
+    found = session.scalars(
+        select(Track).join(Line).where(Line.code == line, Track.code == track)
+    ).one_or_none()
+    if found is None:
+        raise UserError(f"no track {track!r} on line {line!r} in the database")
+    return found
+
+
+def _mast(session: Session, track: Track, code: str, line: str) -> Mast:
+    found = session.scalars(
+        select(Mast).where(Mast.track_id == track.id, Mast.code == code)
+    ).one_or_none()
+    if found is None:
+        raise UserError(f"no mast {code!r} on line {line!r} track {track.code!r} in the register")
+    return found
+
+
+def _moment(text: str | None) -> datetime:
+    if text is None:
+        return _now()
+    try:
+        moment = datetime.fromisoformat(text)
+    except ValueError:
+        raise UserError(f"--at {text!r}: not an ISO 8601 time (e.g. 2025-03-14T09:30Z)") from None
+    moment = moment if moment.tzinfo is not None else moment.replace(tzinfo=UTC)
+    if moment > _now():
+        raise UserError(f"--at {text!r}: in the future")
+    return moment
+
+
+@maintenance.command("record")
+@click.option("--line", required=True, metavar="L", help="Line code.")
+@click.option("--track", required=True, metavar="T", help="Track code.")
+@click.option("--from-mast", metavar="M1", help="First mast of the stretch.")
+@click.option("--to-mast", metavar="M2", help="Last mast of the stretch.")
+@click.option("--from-m", type=float, metavar="X", help="Start chainage [m] (without masts).")
+@click.option("--to-m", type=float, metavar="Y", help="End chainage [m].")
+@click.option(
+    "--kind",
+    required=True,
+    metavar="KIND",
+    help=f"What was done: {', '.join(MAINTENANCE_KINDS)} ({', '.join(REPAIR_KINDS)} resolve "
+    "the alerts on the stretch).",
+)
+@click.option("--by", "by", required=True, metavar="NAME", help="Who did or records the work.")
+@click.option("--wire", type=int, metavar="N", help="Wire position in the spans (default: all).")
+@click.option("--at", "at", metavar="ISO8601", help="When the work was done (default: now; UTC).")
+@click.option("--note", help="A note kept with the action.")
+@database_option
+@click.pass_context
+def record_command(
+    ctx: click.Context,
+    line: str,
+    track: str,
+    from_mast: str | None,
+    to_mast: str | None,
+    from_m: float | None,
+    to_m: float | None,
+    kind: str,
+    by: str,
+    wire: int | None,
+    at: str | None,
+    note: str | None,
+    database_url: str | None,
+) -> None:
+    """Record maintenance work on a stretch of wire (masts M1 to M2, or chainages X to Y)."""
+    by_masts = from_mast is not None or to_mast is not None
+    by_chainage = from_m is not None or to_m is not None
+    if (
+        by_masts == by_chainage
+        or (by_masts and None in (from_mast, to_mast))
+        or (by_chainage and None in (from_m, to_m))
+    ):
+        raise click.UsageError("give --from-mast and --to-mast, or --from-m and --to-m")
+    performed = _moment(at)
+    _, url = _app(ctx, database_url)
+    with open_database(url) as engine, session_scope(engine) as session:
+        found = _track(session, line, track)
+        if by_masts:
+            assert from_mast is not None and to_mast is not None
+            first, last = (
+                _mast(session, found, from_mast, line),
+                _mast(session, found, to_mast, line),
+            )
+            if first.chainage_m > last.chainage_m:
+                first, last = last, first
+            low, high = first.chainage_m, last.chainage_m
+            masts: tuple[str | None, str | None] = (first.code, last.code)
+        else:
+            assert from_m is not None and to_m is not None
+            low, high = sorted((from_m, to_m))
+            masts = (None, None)
+        recorded = record_maintenance(
+            session,
+            found,
+            kind,
+            low,
+            high,
+            performed,
+            by,
+            now=_now(),
+            mast_from=masts[0],
+            mast_to=masts[1],
+            wire=wire,
+            note=note,
+        )
+    where = f"masts {masts[0]} to {masts[1]} " if masts[0] else ""
+    wires = "all wires" if wire is None else f"wire {wire}"
+    resolved = ", ".join(str(i) for i in recorded.resolved)
+    click.echo(
+        f"recorded {kind} on line {line} track {track}, {where}({low:.1f} to {high:.1f} m), "
+        f"{wires}, by {by.strip()} at {performed.isoformat(timespec='seconds')} "
+        f"(action {recorded.action.id}): "
+        + (f"resolved alert(s) {resolved}" if resolved else "no alert resolved")
+    )

@@ -1,0 +1,120 @@
+"""The maintenance service's commands: ``catenary notify deliver|status`` and ``catenary
+scheduler``."""
+
+from __future__ import annotations
+
+import logging
+import sys
+from datetime import datetime
+from typing import TYPE_CHECKING
+
+import click
+
+from catenary.notify import Attempt, deliver_pending, notification_config, undelivered
+from catenary.storage.database import open_database, session_scope
+from catenary.storage.models import AlertNotification
+
+if TYPE_CHECKING:
+    from catenary.cli import App
+
+
+def _app(ctx: click.Context) -> App:
+    from catenary.cli import app_of  # the CLI module imports this one
+
+    return app_of(ctx)
+
+
+def _when(moment: datetime | None) -> str:
+    return "-" if moment is None else moment.strftime("%Y-%m-%d %H:%M:%S UTC")
+
+
+@click.group("notify")
+def notify() -> None:
+    """Alert notifications: deliver those due, list those not sent ([notifications])."""
+
+
+def _describe(attempt: Attempt) -> str:
+    where = f"alert {attempt.alert_id} to {attempt.channel}"
+    if attempt.sent:
+        return f"sent     {where}"
+    if attempt.gave_up:
+        return f"gave up  {where} after {attempt.attempts} attempts: {attempt.error}"
+    return (
+        f"failed   {where} (attempt {attempt.attempts}, next at "
+        f"{_when(attempt.next_attempt_at)}): {attempt.error}"
+    )
+
+
+@notify.command("deliver")
+@click.pass_context
+def deliver_command(ctx: click.Context) -> None:
+    """One delivery pass: queue what is missing, send what is due, retry failures later."""
+    app = _app(ctx)
+    settings = app.settings
+    if not notification_config(settings).channels:
+        click.echo("no notification channels configured ([[notifications.channels]])")
+        return
+    with open_database(settings.database_url) as engine:
+        report = deliver_pending(lambda: session_scope(engine), app.registry, settings)
+    for channel, reason in report.unavailable.items():
+        click.echo(f"channel {channel}: {reason}; its notifications wait", err=True)
+    for attempt in report.attempts:
+        click.echo(_describe(attempt))
+    sent = sum(attempt.sent for attempt in report.attempts)
+    gave_up = sum(attempt.gave_up for attempt in report.attempts)
+    failed = len(report.attempts) - sent - gave_up
+    click.echo(
+        f"{report.queued} queued, {sent} sent, {failed} failed (retried later), {gave_up} gave up"
+    )
+
+
+def _status_line(row: AlertNotification, configured: set[str]) -> str:
+    alert = row.alert
+    masts = f"masts {alert.mast_from}-{alert.mast_to}" if alert.mast_from else "no masts"
+    if row.next_attempt_at is not None:
+        due = f"next at {_when(row.next_attempt_at)}"
+    else:
+        due = "due" if row.status == "pending" else "gave up"
+    unknown = "" if row.notifier in configured else " (channel not configured)"
+    error = f": {row.last_error}" if row.last_error else ""
+    return (
+        f"{row.id:>6}  alert {alert.id} {alert.level} line {alert.track.line.code} track "
+        f"{alert.track.code} {masts} wire {alert.wire} -> {row.notifier}{unknown}: "
+        f"{row.status}, {row.attempts} attempt(s), {due}{error}"
+    )
+
+
+@notify.command("status")
+@click.pass_context
+def status_command(ctx: click.Context) -> None:
+    """List the notifications not sent (pending or failed), with their last error."""
+    settings = _app(ctx).settings
+    configured = {channel.name for channel in notification_config(settings).channels}
+    with open_database(settings.database_url) as engine, session_scope(engine) as session:
+        rows = undelivered(session)
+        lines = [_status_line(row, configured) for row in rows]
+    if not lines:
+        click.echo("every notification is sent")
+        return
+    for line in lines:
+        click.echo(line)
+    failed = sum(row.status == "failed" for row in rows)
+    click.echo(f"{len(rows) - failed} pending, {failed} failed")
+
+
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
+@click.command("scheduler")
+@click.pass_context
+def scheduler(ctx: click.Context) -> None:
+    """Run the scheduled jobs of [scheduler] as a service, until SIGTERM or Ctrl-C."""
+    from catenary.scheduler import serve  # APScheduler is loaded by the service only
+
+    app = _app(ctx)
+    logging.basicConfig(level=logging.INFO, format=LOG_FORMAT, stream=sys.stderr)
+    # the service logs runs, errors and missed runs itself (catenary.scheduler.log_job_event)
+    logging.getLogger("apscheduler").setLevel(logging.WARNING)
+    logging.getLogger("apscheduler.executors").setLevel(logging.CRITICAL)
+    logging.getLogger("alembic").setLevel(logging.WARNING)  # its revision checks at start
+    serve(app.settings, app.registry)

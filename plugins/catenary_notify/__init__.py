@@ -1,0 +1,30 @@
+"""Built-in alert notifiers: ``email`` (SMTP) and ``webhook`` (a JSON POST).
+
+The core's delivery (``catenary.notify``) calls ``send(alert, settings)`` with an alert's fields
+(``catenary.notify.alert_fields``) and a channel's settings (``[notifications.channels.settings]``);
+``send`` returns once the alert is handed over and raises otherwise, so the core records the
+failure and retries later. Secrets never live in the config file: settings name the environment
+variables that hold them.
+"""
+
+from __future__ import annotations
+
+from catenary import hookimpl
+from catenary.registrations import Notifier
+from catenary_notify import smtp, webhook
+
+
+@hookimpl
+def catenary_notifiers() -> list[Notifier]:
+    return [
+        Notifier(
+            name="email",
+            description="e-mail over SMTP (STARTTLS, SSL or plain): a plain-text message an alert",
+            send=smtp.send,
+        ),
+        Notifier(
+            name="webhook",
+            description="a JSON POST of the alert to a URL; any answer but 2xx is a failure",
+            send=webhook.send,
+        ),
+    ]

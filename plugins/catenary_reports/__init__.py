@@ -1,0 +1,73 @@
+"""Built-in reports and exports, run by ``catenary report NAME`` (or a scheduled job):
+
+- ``run``: one run, HTML with plots along the chainage, limit exceedances and the span table;
+- ``maintenance``: open alerts, forecasts and the spans to visit, per line, HTML or CSV;
+- ``linear-events``: per-span results as linear events for asset management, CSV or Parquet;
+- ``repeatability``: two runs over the same section compared (the paper's figure 16).
+
+The hook only registers; each reporter's module (and matplotlib) is imported when it writes.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+from catenary import hookimpl
+from catenary.registrations import Reporter
+
+__all__ = ["catenary_reporters"]
+
+
+def _lazy(module: str) -> Callable[[Mapping[str, Any], Path], Path]:
+    """``catenary_reports.<module>.write``, imported on the first call."""
+
+    def write(request: Mapping[str, Any], output: Path) -> Path:
+        found: Callable[[Mapping[str, Any], Path], Path]
+        found = importlib.import_module(f"catenary_reports.{module}").write
+        return found(request, output)
+
+    return write
+
+
+@hookimpl
+def catenary_reporters() -> list[Reporter]:
+    return [
+        Reporter(
+            name="run",
+            description=(
+                "one run (RUN): header, thickness/height/stagger along the chainage, limit "
+                "exceedances, spans; .html, or .csv/.parquet (the span table with its limit); "
+                "option (--set KEY=VALUE) segment_m 1000 (chainage per figure)"
+            ),
+            write=_lazy("run_report"),
+        ),
+        Reporter(
+            name="maintenance",
+            description=(
+                "open alerts by urgency, forecasts and the spans to visit with their hot spots "
+                "([--line L [--track T]]); .html, or .csv/.parquet (the spans to visit)"
+            ),
+            write=_lazy("maintenance"),
+        ),
+        Reporter(
+            name="linear-events",
+            description=(
+                "per-span results as linear events, one row per span, wire and measure "
+                "([--line L [--track T]] [RUN|--latest]; default: the latest run of every "
+                "track); .csv or .parquet"
+            ),
+            write=_lazy("linear_events"),
+        ),
+        Reporter(
+            name="repeatability",
+            description=(
+                "two runs over the same section (RUN_A RUN_B): thickness curves and the "
+                "histogram of differences; .html, or .csv/.parquet (the histogram); "
+                "options (--set KEY=VALUE) tolerance_mm 0.1, bin_mm 0.02, max_shift_m 1.0"
+            ),
+            write=_lazy("repeatability"),
+        ),
+    ]

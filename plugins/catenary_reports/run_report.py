@@ -1,0 +1,449 @@
+"""The run report: one run's facts, its plots along the chainage, limit exceedances and spans.
+
+``.html``: the header facts (line, track, direction, date, vehicle, rig calibration, length,
+chainage as stored), residual thickness, stagger and height along the chainage per wire (the
+paper's figures 14-15) in figures of at most ``segment_m`` of chainage each, span boundaries
+and mast codes marked, the policy's limits drawn and each span's minimum marked; the spans
+whose minimum residual thickness meets a local limit of the configured policy, most severe
+first (without a policy, the thinnest spans); and every span and wire. ``.csv``/``.parquet``:
+the span table (the ``spans`` export's columns) with the most severe local limit each row
+meets.
+
+The samples file is read twice, row group by row group (its chainage range, then the
+envelopes): memory is bounded by the plots' columns, not by the run's length. Samples with a
+vehicle sensor fault are left out of the plots as they are of the span figures.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from catenary.limits import LEVELS, LimitPolicy, Threshold, thresholds
+from catenary.plugins import PluginRegistry
+from catenary.run_commands import SPAN_COLUMNS
+from catenary.run_samples import samples_file
+from catenary.samples import export_table, read_sample_batches
+from catenary.storage.database import open_database, session_scope
+from catenary.storage.models import Run, SpanMeasurement
+from catenary.storage.runs import find_run
+from catenary_reports import html
+from catenary_reports.html import Cell, number
+from catenary_reports.plots import (
+    PLOT_COLUMNS,
+    Boundary,
+    EnvelopeGrid,
+    LimitLine,
+    Marker,
+    Panel,
+    Series,
+    profile_figure,
+    svg,
+    wire_colour,
+)
+from catenary_reports.request import check_output, parse_request
+
+__all__ = ["exceeded", "write"]
+
+THINNEST = 20
+"""Spans listed by minimum residual thickness when no policy is configured."""
+
+PANELS = (
+    ("residual_thickness_mm", "residual thickness [mm]"),
+    ("stagger_mm", "stagger [mm]"),
+    ("height_mm", "height above rail [mm]"),
+)
+
+
+@dataclass(frozen=True)
+class _Limits:
+    """The policy's thresholds per wire type of the run, and the wire types it cannot judge."""
+
+    policy: LimitPolicy | None
+    by_type: dict[str, list[Threshold]]
+    unknown_types: tuple[str, ...]
+
+
+def _limits(registry: PluginRegistry, policy: LimitPolicy | None, types: set[str]) -> _Limits:
+    known = registry.wire_types()
+    by_type: dict[str, list[Threshold]] = {}
+    if policy is not None:
+        for name in sorted(types & set(known)):
+            by_type[name] = thresholds(known[name], policy)
+    return _Limits(policy, by_type, tuple(sorted(types - set(known))))
+
+
+def exceeded(row: SpanMeasurement, found: Sequence[Threshold]) -> Threshold | None:
+    """The most severe local threshold that the row's minimum residual thickness meets."""
+    met = [
+        t
+        for t in found
+        if t.scope == "local"
+        and (
+            row.min_residual_thickness_mm <= t.residual_thickness_mm
+            if t.rule.inclusive
+            else row.min_residual_thickness_mm < t.residual_thickness_mm
+        )
+    ]
+    return max(met, key=lambda t: LEVELS.index(t.level), default=None)
+
+
+def _masts(row: SpanMeasurement) -> str:
+    return f"{row.mast_from} to {row.mast_to}" if row.mast_from else f"span {row.span}"
+
+
+def _facts(run: Run, spans: Sequence[SpanMeasurement], extent: _Extent) -> list[tuple[str, str]]:
+    rig = run.rig_calibration
+    line = run.line.code + (f" ({run.line.name})" if run.line.name else "")
+    if any(s.mast_from for s in spans):
+        first = min(spans, key=lambda s: s.start_chainage_m)
+        last = max(spans, key=lambda s: s.end_chainage_m)
+        cut = f"at the mast register's masts, {first.mast_from} to {last.mast_to}"
+    else:
+        cut = "at the stagger's turning points (no mast register)"
+    chainage = (
+        f"{extent.low_m:.1f} to {extent.high_m:.1f} m, as stored with the samples"
+        if extent.samples
+        else "no samples"
+    )
+    samples = f"{extent.rows} in {extent.path.name}"
+    if extent.rows > extent.samples:
+        samples += f" ({extent.rows - extent.samples} with a vehicle sensor fault, left out)"
+    return [
+        ("Run", f"{run.id} ({run.status})"),
+        ("Line", line),
+        ("Track", run.track.code if run.track else "-"),
+        ("Direction", f"{run.direction} chainage"),
+        ("Date", html.stamp(run.started_at)),
+        ("Processed", html.stamp(run.processed_at)),
+        ("Vehicle", run.vehicle.name),
+        (
+            "Rig calibration",
+            f"{rig.name} version {rig.version} (SHA-256 {rig.sha256[:12]}, "
+            f"{html.stamp(rig.created_at)})",
+        ),
+        ("Length", f"{run.length_m:.1f} m, {run.scans} scans"),
+        ("Chainage", chainage),
+        ("Spans", f"{len({s.span for s in spans})} ({len(spans)} span-wires), cut {cut}"),
+        ("Wire types", ", ".join(sorted({s.wire_type for s in spans})) or "-"),
+        ("Samples", samples),
+        ("Source file", f"{run.source_file} (SHA-256 {run.source_sha256[:12]})"),
+    ]
+
+
+@dataclass(frozen=True)
+class _Extent:
+    """The chainage range of a run's usable samples (no vehicle sensor fault), how many there
+    are, and how many rows the file holds."""
+
+    path: Path
+    low_m: float
+    high_m: float
+    samples: int
+    rows: int
+
+
+def _extent(path: Path) -> _Extent:
+    low, high, usable, rows = math.inf, -math.inf, 0, 0
+    for batch in read_sample_batches(path, ["chainage_m", "vehicle_fault"]):
+        c = batch["chainage_m"][~batch["vehicle_fault"]]
+        c = c[np.isfinite(c)]
+        rows += int(batch["vehicle_fault"].shape[0])
+        usable += int(c.shape[0])
+        if c.shape[0]:
+            low, high = min(low, float(c.min())), max(high, float(c.max()))
+    return _Extent(path, low, high, usable, rows)
+
+
+def _grid(extent: _Extent, segment_m: float) -> tuple[EnvelopeGrid, int]:
+    """The envelopes of the run's usable samples, and the number of figures they fill."""
+    span_m = max(extent.high_m - extent.low_m, 1.0)
+    figures = max(1, math.ceil(span_m / segment_m - 1e-9))
+    bin_m = span_m / (figures * PLOT_COLUMNS)
+    start = extent.low_m if extent.high_m > extent.low_m else extent.low_m - 0.5
+    grid = EnvelopeGrid(start, bin_m, figures * PLOT_COLUMNS, [q for q, _ in PANELS])
+    columns = ["chainage_m", "wire", "vehicle_fault", *grid.quantities]
+    for batch in read_sample_batches(extent.path, columns):
+        good = ~batch["vehicle_fault"]
+        grid.add(
+            batch["chainage_m"][good],
+            batch["wire"][good],
+            {q: batch[q][good].astype(np.float64) for q in grid.quantities},
+        )
+    return grid, figures
+
+
+def _limit_lines(limits: _Limits) -> list[LimitLine]:
+    several = len(limits.by_type) > 1
+    lines = []
+    for wire_type, found in limits.by_type.items():
+        for t in found:
+            average = t.scope != "local"
+            label = f"{t.level} {t.residual_thickness_mm:.2f} mm"
+            label += f" ({wire_type})" if several else ""
+            label += " (anchor-section average)" if average else ""
+            lines.append(LimitLine(t.residual_thickness_mm, t.level, label, dotted=average))
+    return lines
+
+
+def _figures(
+    extent: _Extent, spans: Sequence[SpanMeasurement], limits: _Limits, segment_m: float
+) -> list[str]:
+    if not extent.samples:
+        return [html.note("The run has no usable samples to plot.")]
+    grid, figures = _grid(extent, segment_m)
+    boundaries: dict[float, str | None] = {}
+    for s in spans:
+        boundaries.setdefault(s.start_chainage_m, s.mast_from)
+        boundaries.setdefault(s.end_chainage_m, s.mast_to)
+    marks = [Boundary(c, label) for c, label in sorted(boundaries.items())]
+    minima = [
+        Marker(s.min_at_chainage_m, s.min_residual_thickness_mm, wire_colour(s.wire)) for s in spans
+    ]
+    panels = [
+        Panel(label, tuple(Series(w, q, wire_colour(w), f"wire {w}") for w in grid.wires))
+        for q, label in PANELS
+    ]
+    lines = _limit_lines(limits)
+    parts = []
+    for index in range(figures):
+        first, last = index * PLOT_COLUMNS, (index + 1) * PLOT_COLUMNS
+        low = grid.start_m + first * grid.bin_m
+        high = grid.start_m + last * grid.bin_m
+        inside = [b.label for b in marks if low <= b.chainage_m <= high and b.label]
+        masts = f" (masts {inside[0]} to {inside[-1]})" if inside else ""
+        fig = profile_figure(
+            grid, first, last, panels, boundaries=marks, limits=lines, markers=minima
+        )
+        parts.append(
+            f"<h3>Chainage {low:.1f} to {high:.1f} m{html.escape(masts)}</h3>"
+            f"<figure>{svg(fig, f'run-figure-{index}')}<figcaption>"
+            "Each pixel column shows the lowest and highest value of its samples "
+            f"({grid.bin_m:.2f} m of chainage), so no local minimum is lost; squares mark "
+            "each span's minimum; dashed vertical lines are the span boundaries (masts)."
+            "</figcaption></figure>"
+        )
+    return parts
+
+
+def _exceedance_section(spans: Sequence[SpanMeasurement], limits: _Limits) -> str:
+    if limits.policy is None:
+        thinnest = sorted(spans, key=lambda s: s.min_residual_thickness_mm)[:THINNEST]
+        rows: list[list[Cell | str]] = [
+            [
+                Cell(_masts(s), keep=True),
+                number(s.start_chainage_m, 1),
+                number(s.end_chainage_m, 1),
+                Cell(str(s.wire), numeric=True),
+                s.wire_type,
+                number(s.min_residual_thickness_mm),
+                number(s.min_at_chainage_m, 1),
+                number(s.mean_residual_thickness_mm),
+            ]
+            for s in thinnest
+        ]
+        return html.section(
+            "Thinnest spans",
+            html.note(
+                "No wear-limit policy is configured ([limits] policy in the config, or "
+                f"--policy NAME), so no limit is applied: the {len(thinnest)} spans with the "
+                f"lowest minimum residual thickness of {len(spans)}."
+            ),
+            html.table(
+                ["masts", "from m", "to m", "wire", "wire type", "min mm", "at m", "mean mm"],
+                rows,
+                table_id="exceedances",
+            ),
+            section_id="exceedance",
+        )
+    found = []
+    for s in spans:
+        t = exceeded(s, limits.by_type.get(s.wire_type, ()))
+        if t is not None:
+            found.append((s, t))
+    found.sort(key=lambda p: (-LEVELS.index(p[1].level), p[0].min_residual_thickness_mm))
+    rows = [
+        [
+            Cell(markup=html.tag(t.level)),
+            Cell(_masts(s), keep=True),
+            number(s.start_chainage_m, 1),
+            number(s.end_chainage_m, 1),
+            Cell(str(s.wire), numeric=True),
+            s.wire_type,
+            number(s.min_residual_thickness_mm),
+            number(s.min_at_chainage_m, 1),
+            number(t.residual_thickness_mm),
+            number(s.min_residual_thickness_mm - t.residual_thickness_mm),
+            f"rule {t.rule_number}: {t.action or t.rule.criterion}",
+        ]
+        for s, t in found
+    ]
+    policy = limits.policy
+    notes = [
+        html.note(
+            f"Policy {policy.name}: {policy.description}. Local rules are applied to each span's "
+            "minimum residual thickness; anchor-section average rules are drawn as dotted "
+            "lines but not applied to single spans."
+        )
+    ]
+    if limits.unknown_types:
+        notes.append(
+            html.note(f"Wire types not registered, not judged: {', '.join(limits.unknown_types)}")
+        )
+    return html.section(
+        "Limit exceedances",
+        *notes,
+        html.table(
+            [
+                "level",
+                "masts",
+                "from m",
+                "to m",
+                "wire",
+                "wire type",
+                "min mm",
+                "at m",
+                "limit mm",
+                "margin mm",
+                "action",
+            ],
+            rows,
+            row_classes=[t.level for _, t in found],
+            table_id="exceedances",
+            empty=f"No span meets a local limit of policy {policy.name}.",
+        ),
+        section_id="exceedance",
+    )
+
+
+def _span_section(spans: Sequence[SpanMeasurement], limits: _Limits) -> str:
+    wires: dict[int, int] = {}
+    for s in spans:
+        wires[s.span] = wires.get(s.span, 0) + 1
+    rows: list[list[Cell | str]] = []
+    classes: list[str] = []
+    for s in spans:
+        t = exceeded(s, limits.by_type.get(s.wire_type, ()))
+        classes.append(t.level if t is not None else "")
+        rows.append(
+            [
+                Cell(str(s.span), numeric=True),
+                Cell(_masts(s), keep=True),
+                number(s.start_chainage_m, 1),
+                number(s.end_chainage_m, 1),
+                number(s.end_chainage_m - s.start_chainage_m, 1),
+                Cell(str(s.wire), numeric=True),
+                s.wire_type,
+                number(s.min_residual_thickness_mm),
+                number(s.min_at_chainage_m, 1),
+                number(s.mean_residual_thickness_mm),
+                f"{s.height_min_mm:.0f} to {s.height_max_mm:.0f}",
+                f"{s.stagger_min_mm:.0f} to {s.stagger_max_mm:.0f}",
+                Cell(str(s.samples), numeric=True),
+                "overlap" if wires[s.span] > 1 else "",
+                Cell(markup=html.tag(t.level)) if t is not None else "",
+            ]
+        )
+    return html.section(
+        "Spans",
+        html.note(
+            "One row per span and contact wire (the spans export); an overlap is a span with "
+            "two contact wires; heights above top of rail, staggers in the track frame "
+            "(positive to the right looking in the direction of travel)."
+        ),
+        html.table(
+            [
+                "span",
+                "masts",
+                "from m",
+                "to m",
+                "length m",
+                "wire",
+                "wire type",
+                "min mm",
+                "at m",
+                "mean mm",
+                "height mm",
+                "stagger mm",
+                "samples",
+                "hot spot",
+                "limit",
+            ],
+            rows,
+            row_classes=classes,
+            table_id="spans",
+        ),
+        section_id="span-table",
+    )
+
+
+_TABLE_SCHEMA = pa.schema(
+    [
+        (
+            c,
+            pa.string()
+            if c in ("mast_from", "mast_to", "wire_type")
+            else pa.int64()
+            if c in ("span", "wire", "samples")
+            else pa.float64(),
+        )
+        for c in SPAN_COLUMNS
+    ]
+    + [
+        ("limit_policy", pa.string()),
+        ("limit_level", pa.string()),
+        ("limit_residual_thickness_mm", pa.float64()),
+        ("limit_action", pa.string()),
+    ]
+)
+
+
+def _table(spans: Sequence[SpanMeasurement], limits: _Limits) -> pa.Table:
+    columns: dict[str, list[Any]] = {c: [getattr(s, c) for s in spans] for c in SPAN_COLUMNS}
+    met = [exceeded(s, limits.by_type.get(s.wire_type, ())) for s in spans]
+    policy = limits.policy.name if limits.policy is not None else None
+    columns["limit_policy"] = [policy] * len(spans)
+    columns["limit_level"] = [t.level if t else None for t in met]
+    columns["limit_residual_thickness_mm"] = [t.residual_thickness_mm if t else None for t in met]
+    columns["limit_action"] = [(t.action or t.rule.criterion) if t else None for t in met]
+    return pa.table(columns, schema=_TABLE_SCHEMA)
+
+
+def write(raw: Any, output: Path) -> Path:
+    """Write the run report of ``raw['runs'][0]`` to ``output`` (module docstring)."""
+    request = parse_request("run", raw, runs=(1, 1), options={"segment_m": 1000.0})
+    suffix = check_output(output, (".html", ".csv", ".parquet"))
+    settings = request.settings
+    with open_database(settings.database_url) as engine, session_scope(engine) as session:
+        run = find_run(session, request.runs[0])
+        spans = list(run.span_measurements)
+        limits = _limits(request.registry, request.policy, {s.wire_type for s in spans})
+        if suffix != ".html":
+            export_table(iter([_table(spans, limits)]), _TABLE_SCHEMA, output)
+            return output
+        extent = _extent(samples_file(settings, run))
+        facts = _facts(run, spans, extent)
+        title = f"Run {run.id}: line {run.line.code}, track {run.track.code if run.track else '-'}"
+        subtitle = (
+            f"{run.direction} chainage, {html.stamp(run.started_at)}, vehicle {run.vehicle.name}"
+        )
+    policy = (
+        f"{limits.policy.name}: {limits.policy.description}" if limits.policy else "none configured"
+    )
+    sections = [
+        html.section("Run", html.facts([*facts, ("Wear-limit policy", policy)]), section_id="run"),
+        html.section(
+            "Residual thickness, stagger and height along the chainage",
+            *_figures(extent, spans, limits, request.options["segment_m"]),
+            section_id="plots",
+        ),
+        _exceedance_section(spans, limits),
+        _span_section(spans, limits),
+    ]
+    return html.write_text(output, html.page(title, subtitle, sections))

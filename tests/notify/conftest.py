@@ -1,0 +1,243 @@
+"""A migrated database with alerts, real SMTP and HTTP servers on 127.0.0.1, and settings.
+
+The servers are started by the tests on free ports of the loopback interface and record what
+they receive; nothing leaves the machine.
+"""
+
+from __future__ import annotations
+
+import json
+import socket
+import threading
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from email import message_from_bytes, policy
+from email.message import EmailMessage
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+from typing import Any
+
+import pytest
+import tomli_w
+from aiosmtpd.controller import Controller
+from aiosmtpd.smtp import AuthResult
+from sqlalchemy import Engine, select
+from sqlalchemy.orm import Session
+
+from catenary.config import Settings, load_settings
+from catenary.storage import migrate
+from catenary.storage.database import make_engine, session_scope
+from catenary.storage.models import Alert, Line, Track
+
+T0 = datetime(2024, 5, 6, 7, 8, 9, tzinfo=UTC)
+
+
+def free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return int(probe.getsockname()[1])
+
+
+@pytest.fixture
+def engine(database_url: str) -> Iterator[Engine]:
+    """An engine on a database migrated to head."""
+    engine = make_engine(database_url)
+    migrate.upgrade(engine)
+    yield engine
+    engine.dispose()
+
+
+class Clock:
+    """A clock the test moves by hand."""
+
+    def __init__(self, now: datetime = T0) -> None:
+        self.now = now
+
+    def __call__(self) -> datetime:
+        return self.now
+
+
+@pytest.fixture
+def clock() -> Clock:
+    return Clock()
+
+
+def add_alert(session: Session, key: str, **columns: Any) -> Alert:
+    """An open alert on line L100 track 1 (line and track made on first use)."""
+    track = session.scalars(select(Track).join(Line).where(Line.code == "L100")).one_or_none()
+    if track is None:
+        track = Track(line=Line(code="L100", name="Test line"), code="1")
+    values: dict[str, Any] = {
+        "track": track,
+        "wire": 0,
+        "mast_from": "M1",
+        "mast_to": "M2",
+        "start_chainage_m": 1000.0,
+        "end_chainage_m": 1050.0,
+        "rule": "db-ril-997#1",
+        "level": "urgent",
+        "kind": "threshold",
+        "value": 9.9,
+        "threshold": 10.0,
+        "raised_at": T0,
+        "condition_key": key,
+    }
+    values.update(columns)
+    alert = Alert(**values)
+    session.add(alert)
+    session.flush()
+    return alert
+
+
+@pytest.fixture
+def alert_in() -> Callable[..., Alert]:
+    """``alert_in(session, key, **columns)``: an alert added to ``session``, not committed."""
+    return add_alert
+
+
+@pytest.fixture
+def alerts(engine: Engine) -> Callable[..., int]:
+    """``alerts(key, **columns)`` commits an alert and returns its id."""
+
+    def make(key: str, **columns: Any) -> int:
+        with session_scope(engine) as session:
+            return add_alert(session, key, **columns).id
+
+    return make
+
+
+@pytest.fixture
+def make_settings(tmp_path: Path, database_url: str) -> Callable[[dict[str, Any]], Settings]:
+    """Settings from a config file holding ``config`` (a TOML document as a dict)."""
+
+    def make(config: dict[str, Any]) -> Settings:
+        path = tmp_path / "catenary.toml"
+        path.write_text(tomli_w.dumps(config))
+        return load_settings(config_path=path, database_url=database_url)
+
+    return make
+
+
+# --- an SMTP server ---------------------------------------------------------------------------
+
+
+@dataclass
+class Received:
+    sender: str
+    recipients: list[str]
+    message: EmailMessage
+
+
+@dataclass
+class SmtpServer:
+    host: str
+    port: int
+    received: list[Received] = field(default_factory=list)
+    logins: list[tuple[str, str]] = field(default_factory=list)
+
+
+class _Handler:
+    def __init__(self, server: SmtpServer) -> None:
+        self.server = server
+
+    async def handle_DATA(self, smtp: Any, session: Any, envelope: Any) -> str:
+        self.server.received.append(
+            Received(
+                envelope.mail_from,
+                list(envelope.rcpt_tos),
+                message_from_bytes(envelope.content, policy=policy.default),
+            )
+        )
+        return "250 OK"
+
+
+@pytest.fixture
+def start_smtp_server() -> Iterator[Callable[..., SmtpServer]]:
+    """``start_smtp_server(**options)``: an SMTP server on a free port of 127.0.0.1 (options:
+    aiosmtpd's ``Controller``); it accepts the login ``catenary`` / ``s3cret``."""
+    controllers: list[Controller] = []
+
+    def start(**options: Any) -> SmtpServer:
+        server = SmtpServer("127.0.0.1", free_port())
+
+        def authenticate(smtp: Any, session: Any, envelope: Any, mechanism: str, auth: Any) -> Any:
+            login = auth.login.decode(), auth.password.decode()
+            server.logins.append(login)
+            return AuthResult(success=login == ("catenary", "s3cret"), handled=False)
+
+        controller = Controller(
+            _Handler(server),
+            hostname=server.host,
+            port=server.port,
+            authenticator=authenticate,
+            **options,
+        )
+        controller.start()
+        controllers.append(controller)
+        return server
+
+    yield start
+    for controller in controllers:
+        controller.stop()
+
+
+@pytest.fixture
+def smtp_server(start_smtp_server: Callable[..., SmtpServer]) -> SmtpServer:
+    """A plain SMTP server (AUTH allowed without TLS)."""
+    return start_smtp_server(auth_require_tls=False)
+
+
+@pytest.fixture
+def unused_port() -> int:
+    """A port of 127.0.0.1 nothing listens on."""
+    return free_port()
+
+
+# --- an HTTP server ---------------------------------------------------------------------------
+
+
+@dataclass
+class HttpServer:
+    url: str
+    statuses: list[int]
+    """Status codes to answer, one per request; 200 once they run out."""
+    requests: list[dict[str, Any]] = field(default_factory=list)
+    delay_s: float = 0.0
+
+    @property
+    def origin(self) -> str:
+        """``http://127.0.0.1:PORT``."""
+        return self.url.rsplit("/", 1)[0]
+
+
+@pytest.fixture
+def http_server() -> Iterator[HttpServer]:
+    """An HTTP server on 127.0.0.1 recording each POST (path, headers, JSON body)."""
+    release = threading.Event()
+
+    class Handler(BaseHTTPRequestHandler):
+        def do_POST(self) -> None:
+            body = self.rfile.read(int(self.headers["Content-Length"]))
+            state.requests.append(
+                {"path": self.path, "headers": dict(self.headers), "json": json.loads(body)}
+            )
+            if state.delay_s:
+                release.wait(state.delay_s)
+            status = state.statuses.pop(0) if state.statuses else 200
+            self.send_response(status)
+            self.send_header("Content-Length", "0")
+            self.end_headers()
+
+        def log_message(self, format: str, *args: Any) -> None:
+            pass
+
+    server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+    server.daemon_threads = True
+    state = HttpServer(f"http://127.0.0.1:{server.server_address[1]}/hook", [])
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    yield state
+    release.set()
+    server.shutdown()
+    server.server_close()

@@ -1,0 +1,205 @@
+"""The ``email`` notifier against a real SMTP server (aiosmtpd) on 127.0.0.1, through the
+delivery: the message received and read, a password from the environment, STARTTLS with the
+server's certificate verified, and failures recorded for a retry."""
+
+from __future__ import annotations
+
+import shutil
+import ssl
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+from sqlalchemy import Engine, select
+
+from catenary.notify import deliver_pending
+from catenary.plugins import PluginRegistry
+from catenary.storage.database import session_scope
+from catenary.storage.models import AlertNotification
+
+
+@pytest.fixture
+def registry() -> PluginRegistry:
+    return PluginRegistry()  # the built-ins, email among them
+
+
+def email_config(server: Any, **settings: Any) -> dict[str, Any]:
+    channel_settings = {
+        "host": server.host,
+        "port": server.port,
+        "security": "none",
+        "from": "catenary@example.org",
+        "to": ["overhead-line@example.org", "planner@example.org"],
+        "timeout": 5,
+        **settings,
+    }
+    channel = {"name": "mail", "notifier": "email", "settings": channel_settings}
+    return {"notifications": {"channels": [channel]}}
+
+
+def deliver(engine: Engine, registry: PluginRegistry, settings: Any) -> Any:
+    return deliver_pending(lambda: session_scope(engine), registry, settings)
+
+
+def only_row(engine: Engine) -> AlertNotification:
+    with session_scope(engine) as session:
+        return session.scalars(select(AlertNotification)).one()
+
+
+def test_the_message_names_the_alert(
+    engine: Engine,
+    alerts: Any,
+    make_settings: Any,
+    smtp_server: Any,
+    registry: PluginRegistry,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setenv("TEST_SMTP_PASSWORD", "s3cret")
+    alert_id = alerts(
+        "a",
+        level="critical",
+        mast_from="M17",
+        mast_to="M18",
+        start_chainage_m=12345.5,
+        end_chainage_m=12398.0,
+        wire=1,
+        value=8.62,
+        threshold=8.7,
+        rule="db-ril-997#3",
+    )
+    settings = make_settings(
+        email_config(smtp_server, username="catenary", password_env="TEST_SMTP_PASSWORD")
+    )
+
+    (attempt,) = deliver(engine, registry, settings).attempts
+    assert attempt.sent, attempt.error
+    assert smtp_server.logins == [("catenary", "s3cret")]
+    (received,) = smtp_server.received
+    assert received.sender == "catenary@example.org"
+    assert received.recipients == ["overhead-line@example.org", "planner@example.org"]
+    mail = received.message
+    assert mail["Subject"] == (
+        "[catenary] CRITICAL: line L100 track 1, masts M17 to M18, wire 1: 8.620 vs threshold "
+        "8.700 (db-ril-997#3)"
+    )
+    assert mail["To"] == "overhead-line@example.org, planner@example.org"
+    assert mail.get_content_type() == "text/plain"
+    body = mail.get_content()
+    for line in (
+        "Level:     critical",
+        "Line:      L100",
+        "Track:     1",
+        "Masts:     M17 to M18",
+        "Chainage:  12345.5 m to 12398.0 m",
+        "Wire:      1",
+        "Value:     8.620 (threshold 8.700)",
+        "Rule:      db-ril-997#3",
+        f"Alert:     {alert_id} (open)",
+    ):
+        assert line in body.splitlines(), body
+    assert only_row(engine).status == "sent"
+
+
+@pytest.mark.parametrize(
+    ("settings", "password", "error"),
+    [
+        (
+            {"username": "catenary", "password": "s3cret"},
+            None,
+            "email settings: password may not be written in the config file; name the "
+            "environment variable that holds it in password_env",
+        ),
+        (
+            {"username": "catenary", "password_env": "TEST_SMTP_PASSWORD"},
+            None,
+            "email settings: environment variable TEST_SMTP_PASSWORD (password_env) is not set",
+        ),
+        (
+            {"username": "catenary", "password_env": "TEST_SMTP_PASSWORD"},
+            "wrong",
+            "SMTPAuthenticationError: (535, ",
+        ),
+        ({"hots": "smtp"}, None, "email settings: unknown key 'hots' (known: ca_file, from, "),
+        ({"security": "tls"}, None, "email settings: security must be one of starttls, ssl, none"),
+        ({"to": "ops@example.org"}, None, "email settings: to must be a list of addresses"),
+    ],
+)
+def test_failures_are_recorded_and_nothing_is_sent(
+    engine: Engine,
+    alerts: Any,
+    make_settings: Any,
+    smtp_server: Any,
+    registry: PluginRegistry,
+    monkeypatch: pytest.MonkeyPatch,
+    settings: dict[str, Any],
+    password: str | None,
+    error: str,
+) -> None:
+    if password is None:
+        monkeypatch.delenv("TEST_SMTP_PASSWORD", raising=False)
+    else:
+        monkeypatch.setenv("TEST_SMTP_PASSWORD", password)
+    alerts("a")
+    config = email_config(smtp_server, **settings)
+    (attempt,) = deliver(engine, registry, make_settings(config)).attempts
+    assert not attempt.sent
+    assert error in attempt.error
+    assert smtp_server.received == []
+    row = only_row(engine)
+    assert (row.status, row.attempts) == ("failed", 1)
+    assert row.next_attempt_at is not None  # retried later
+
+
+def test_a_server_that_is_down(
+    engine: Engine, alerts: Any, make_settings: Any, registry: PluginRegistry, unused_port: int
+) -> None:
+    alerts("a")
+    down = SimpleNamespace(host="127.0.0.1", port=unused_port)
+    (attempt,) = deliver(engine, registry, make_settings(email_config(down))).attempts
+    assert attempt.error.startswith("ConnectionRefusedError: ")
+    assert only_row(engine).status == "failed"
+
+
+@pytest.fixture
+def tls_files(tmp_path: Path) -> Iterator[tuple[Path, Path]]:
+    """A self-signed certificate for 127.0.0.1 and its key (openssl)."""
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed")
+    cert, key = tmp_path / "cert.pem", tmp_path / "key.pem"
+    command = "openssl req -x509 -newkey rsa:2048 -nodes -days 1 -subj /CN=127.0.0.1"
+    san = "subjectAltName=IP:127.0.0.1"
+    subprocess.run(
+        [*command.split(), "-addext", san, "-keyout", str(key), "-out", str(cert)],
+        check=True,
+        capture_output=True,
+    )
+    yield cert, key
+
+
+def test_starttls_verifies_the_server(
+    engine: Engine,
+    alerts: Any,
+    make_settings: Any,
+    registry: PluginRegistry,
+    tls_files: tuple[Path, Path],
+    start_smtp_server: Any,
+) -> None:
+    cert, key = tls_files
+    context = ssl.create_default_context(ssl.Purpose.CLIENT_AUTH)
+    context.load_cert_chain(cert, key)
+    server = start_smtp_server(tls_context=context, require_starttls=True)
+    alerts("a")
+    untrusted = make_settings(email_config(server, security="starttls"))
+    (attempt,) = deliver(engine, registry, untrusted).attempts
+    assert "CERTIFICATE_VERIFY_FAILED" in attempt.error
+    assert server.received == []
+
+    trusted = make_settings(email_config(server, security="starttls", ca_file=str(cert)))
+    with session_scope(engine) as session:  # due again at once
+        session.scalars(select(AlertNotification)).one().next_attempt_at = None
+    (attempt,) = deliver(engine, registry, trusted).attempts
+    assert attempt.sent, attempt.error
+    assert len(server.received) == 1

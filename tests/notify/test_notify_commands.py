@@ -1,0 +1,96 @@
+"""``catenary notify deliver|status`` as a user meets them, with a real webhook server."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import tomli_w
+from click.testing import CliRunner, Result
+from sqlalchemy import Engine
+
+from catenary.cli import cli
+
+
+def catenary(config: Path, database_url: str, *args: str) -> Result:
+    return CliRunner().invoke(cli, ["--config", str(config), "--db", database_url, *args])
+
+
+def write_config(path: Path, document: dict[str, Any]) -> Path:
+    path.write_text(tomli_w.dumps(document))
+    return path
+
+
+def test_deliver_retry_and_status(
+    engine: Engine, alerts: Any, http_server: Any, tmp_path: Path, database_url: str
+) -> None:
+    alert_id = alerts("a")
+    http_server.statuses = [500]
+    channel = {"name": "hook", "notifier": "webhook", "settings": {"url": http_server.url}}
+    config = write_config(
+        tmp_path / "c.toml",
+        {"notifications": {"retry_minutes": 0.001, "channels": [channel]}},
+    )
+
+    result = catenary(config, database_url, "notify", "deliver")
+    assert result.exit_code == 0, result.output
+    first, summary = result.output.splitlines()
+    assert first.startswith(f"failed   alert {alert_id} to hook (attempt 1, next at 20")
+    assert first.endswith(
+        f"UTC): RuntimeError: {http_server.origin} answered HTTP 500 Internal Server Error"
+    )
+    assert summary == "1 queued, 0 sent, 1 failed (retried later), 0 gave up"
+
+    result = catenary(config, database_url, "notify", "status")
+    assert result.exit_code == 0, result.output
+    row, summary = result.output.splitlines()
+    assert f"alert {alert_id} urgent line L100 track 1 masts M1-M2 wire 0 -> hook: failed, " in row
+    assert "1 attempt(s), next at 20" in row
+    assert row.endswith("answered HTTP 500 Internal Server Error")
+    assert summary == "0 pending, 1 failed"
+
+    time.sleep(0.2)  # past the backoff
+    result = catenary(config, database_url, "notify", "deliver")
+    assert result.exit_code == 0, result.output
+    assert result.output.splitlines() == [
+        f"sent     alert {alert_id} to hook",
+        "0 queued, 1 sent, 0 failed (retried later), 0 gave up",
+    ]
+    result = catenary(config, database_url, "notify", "status")
+    assert result.output == "every notification is sent\n"
+
+
+def test_channels_of_a_removed_config_are_still_listed(
+    engine: Engine, alerts: Any, tmp_path: Path, database_url: str
+) -> None:
+    alerts("a")
+    channel = {"name": "sms", "notifier": "pager"}  # not installed: waits
+    config = write_config(tmp_path / "c.toml", {"notifications": {"channels": [channel]}})
+    result = catenary(config, database_url, "notify", "deliver")
+    assert result.exit_code == 0, result.output
+    assert "channel sms: notifier 'pager' is not installed (known: " in result.output
+    assert "1 queued, 0 sent" in result.output
+
+    empty = write_config(tmp_path / "empty.toml", {})
+    result = catenary(empty, database_url, "notify", "deliver")
+    assert result.output == "no notification channels configured ([[notifications.channels]])\n"
+    result = catenary(empty, database_url, "notify", "status")
+    assert "-> sms (channel not configured): pending, 0 attempt(s), due" in result.output
+
+
+def test_errors_are_one_line(engine: Engine, tmp_path: Path, database_url: str) -> None:
+    bad = write_config(tmp_path / "bad.toml", {"notifications": {"max_attempts": "many"}})
+    result = catenary(bad, database_url, "notify", "deliver")
+    assert result.exit_code == 1
+    assert result.output == (
+        f"Error: {bad}: notifications.max_attempts must be a positive integer, not 'many'\n"
+    )
+
+    channel = {"notifier": "webhook", "settings": {"url": "http://127.0.0.1:9/x"}}
+    good = write_config(tmp_path / "good.toml", {"notifications": {"channels": [channel]}})
+    unmigrated = f"sqlite:///{tmp_path / 'other.sqlite'}"
+    result = catenary(good, unmigrated, "notify", "status")
+    assert result.exit_code == 1
+    assert "is not migrated" in result.output
+    assert len(result.output.splitlines()) == 1

@@ -1,0 +1,84 @@
+"""A migrated database, settings from a config file, and a plugin with a fake reporter and a
+fake notifier for the scheduler's tests."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import pytest
+import tomli_w
+from sqlalchemy import Engine
+
+from catenary import hookimpl
+from catenary.config import Settings, load_settings
+from catenary.plugins import PluginRegistry
+from catenary.registrations import Notifier, Reporter
+from catenary.storage import migrate
+from catenary.storage.database import make_engine
+
+
+@pytest.fixture
+def engine(database_url: str) -> Iterator[Engine]:
+    """An engine on a database migrated to head."""
+    engine = make_engine(database_url)
+    migrate.upgrade(engine)
+    yield engine
+    engine.dispose()
+
+
+@pytest.fixture
+def make_settings(tmp_path: Path, database_url: str) -> Callable[[dict[str, Any]], Settings]:
+    """Settings from a config file holding ``config`` (a TOML document as a dict)."""
+
+    def make(config: dict[str, Any]) -> Settings:
+        path = tmp_path / "catenary.toml"
+        path.write_text(tomli_w.dumps(config))
+        return load_settings(config_path=path, database_url=database_url)
+
+    return make
+
+
+class Fakes:
+    """Reporter ``fake`` (records its calls; waits for ``hold`` if set, raises ``error`` if
+    set) and notifier ``fake``."""
+
+    def __init__(self) -> None:
+        self.reports: list[tuple[Mapping[str, Any], Path]] = []
+        self.sent: list[Mapping[str, Any]] = []
+        self.error: Exception | None = None
+        self.hold: threading.Event | None = None
+
+    def write(self, request: Mapping[str, Any], path: Path) -> Path:
+        if self.hold is not None:
+            self.hold.wait(30)
+        if self.error is not None:
+            raise self.error
+        self.reports.append((request, path))
+        return path
+
+    def send(self, alert: Mapping[str, Any], settings: Mapping[str, Any]) -> None:
+        self.sent.append(alert)
+
+    @hookimpl
+    def catenary_reporters(self) -> list[Reporter]:
+        return [Reporter("fake", "records", self.write)]
+
+    @hookimpl
+    def catenary_notifiers(self) -> list[Notifier]:
+        return [Notifier("fake", "records", self.send)]
+
+
+@pytest.fixture
+def fakes() -> Iterator[Fakes]:
+    fakes = Fakes()
+    yield fakes
+    if fakes.hold is not None:
+        fakes.hold.set()
+
+
+@pytest.fixture
+def registry(fakes: Fakes) -> PluginRegistry:
+    return PluginRegistry(autoload=False, plugins=[("fakes", fakes)])

@@ -1,0 +1,324 @@
+"""The scheduler in-process (a ``BackgroundScheduler`` on the same job store and executor):
+jobs kept, rescheduled and removed from the store as the config says; each kind of job; runs,
+errors and missed runs logged."""
+
+from __future__ import annotations
+
+import logging
+import pickle
+import threading
+import time
+from collections.abc import Callable, Iterator
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+import pytest
+from apscheduler.schedulers.background import BackgroundScheduler
+from sqlalchemy import Engine, select, text
+from sqlalchemy.orm import Session
+
+from catenary import jobs
+from catenary.alerts import Evaluation
+from catenary.config import Settings
+from catenary.errors import UserError
+from catenary.jobs import JobContext, run_job
+from catenary.plugins import PluginRegistry
+from catenary.scheduler import make_scheduler, scheduler_config, sync_jobs
+from catenary.storage.database import session_scope
+from catenary.storage.models import Alert, AlertNotification, Line, Track
+
+FIRE = datetime(2024, 5, 6, 22, 30, tzinfo=UTC)
+
+
+def job(id: str, kind: str, **fields: Any) -> dict[str, Any]:
+    return {"id": id, "job": kind, **fields}
+
+
+def report(id: str = "r", **fields: Any) -> dict[str, Any]:
+    values = {"reporter": "fake", "output": "reports/{line}-{date}.txt", "line": "L1"}
+    return job(id, "report", **(values | fields))
+
+
+@pytest.fixture
+def started(
+    engine: Engine, registry: PluginRegistry
+) -> Iterator[Callable[..., BackgroundScheduler]]:
+    """``started(settings, paused=True)``: a scheduler as the service makes it, running in the
+    background; shut down at the end of the test."""
+    running: list[BackgroundScheduler] = []
+
+    def start(settings: Settings, *, paused: bool = True) -> BackgroundScheduler:
+        config = scheduler_config(settings)
+        context = JobContext(settings, registry, engine, config.timezone)
+        scheduler, store = make_scheduler(engine, config, context, BackgroundScheduler)
+        sync_jobs(scheduler, store, config)
+        scheduler.start(paused=paused)
+        running.append(scheduler)
+        return scheduler
+
+    yield start
+    for scheduler in running:
+        if scheduler.running:
+            scheduler.shutdown()
+
+
+def stored(engine: Engine) -> dict[str, dict[str, Any]]:
+    with engine.connect() as connection:
+        rows = connection.execute(text("SELECT id, job_state FROM apscheduler_jobs")).all()
+    return {row.id: pickle.loads(row.job_state) for row in rows}
+
+
+def wait_for(condition: Callable[[], Any], timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.05)
+
+
+def test_a_restart_keeps_a_job_and_its_next_fire_time(
+    make_settings: Any, started: Any, engine: Engine, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO, "catenary.scheduler")
+    settings = make_settings(
+        {
+            "scheduler": {
+                "jobs": [report(interval_minutes=60), job("d", "evaluate-alerts", cron="0 6 * * 1")]
+            }
+        }
+    )
+    first = started(settings)
+    before = {j.id: j.next_run_time for j in first.get_jobs()}
+    first.shutdown()
+    time.sleep(0.05)
+
+    second = started(settings)
+    assert {j.id: j.next_run_time for j in second.get_jobs()} == before
+    assert "job r: report every 60 min (kept)" in caplog.messages
+    assert "job d: evaluate-alerts at cron '0 6 * * 1' (UTC) (kept)" in caplog.messages
+    second.shutdown()
+
+    # the store holds the job's kind and options, nothing of the service
+    state = stored(engine)["r"]
+    assert state["func"] == "catenary.jobs:run_job"
+    options = {"reporter": "fake", "output": "reports/{line}-{date}.txt", "line": "L1"}
+    assert state["kwargs"] == {"job": "report", "options": options}
+    assert (state["coalesce"], state["max_instances"], state["misfire_grace_time"]) == (
+        True,
+        1,
+        6 * 3600,
+    )
+
+
+def test_a_changed_job_is_rescheduled_and_a_removed_one_removed(
+    make_settings: Any, started: Any, engine: Engine
+) -> None:
+    first = started(
+        make_settings(
+            {
+                "scheduler": {
+                    "jobs": [
+                        report(interval_minutes=60),
+                        job("d", "evaluate-alerts", cron="0 6 * * 1"),
+                    ]
+                }
+            }
+        )
+    )
+    before = first.get_job("r").next_run_time
+    first.shutdown()
+
+    second = started(make_settings({"scheduler": {"jobs": [report(interval_minutes=600)]}}))
+    assert [j.id for j in second.get_jobs()] == ["r"]
+    assert second.get_job("r").next_run_time - before > timedelta(hours=8)
+    second.shutdown()
+    assert set(stored(engine)) == {"r"}
+
+    third = started(
+        make_settings({"scheduler": {"jobs": [report(interval_minutes=600, line="L2")]}})
+    )
+    assert third.get_job("r").kwargs["options"]["line"] == "L2"  # options changed: replaced
+    third.shutdown()
+
+    started(make_settings({})).shutdown()
+    assert stored(engine) == {}
+
+
+def test_a_report_job_runs_with_its_fire_time(
+    make_settings: Any, started: Any, fakes: Any, tmp_path: Any
+) -> None:
+    settings = make_settings(
+        {"scheduler": {"timezone": "Asia/Tokyo", "jobs": [report(interval_minutes=60)]}}
+    )
+    scheduler = started(settings, paused=False)
+    fire = datetime.now(UTC).replace(microsecond=0) - timedelta(seconds=1)
+    scheduler.modify_job("r", next_run_time=fire)
+    scheduler.wakeup()
+    wait_for(lambda: fakes.reports)
+    wait_for(lambda: scheduler.get_job("r").next_run_time > fire)
+    assert scheduler.get_job("r").next_run_time == fire + timedelta(hours=1)
+
+    ((request, path),) = fakes.reports
+    date = fire.astimezone(scheduler.timezone).date().isoformat()
+    assert path == settings.data_dir / "reports" / f"L1-{date}.txt"
+    assert path.parent.is_dir()
+    assert (request["line"], request["track"], request["runs"]) == ("L1", None, ())
+    assert request["settings"] is settings
+
+
+def test_job_errors_and_missed_runs_are_logged(
+    make_settings: Any, started: Any, fakes: Any, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO, "catenary.scheduler")
+    settings = make_settings(
+        {
+            "scheduler": {
+                "misfire_grace_minutes": 0.05,
+                "jobs": [
+                    report("boom", interval_minutes=60),
+                    report("unknown", interval_minutes=60, reporter="nope"),
+                    report("late", interval_minutes=600),
+                ],
+            }
+        }
+    )
+    fakes.error = RuntimeError("disk\nfull")
+    scheduler = started(settings, paused=False)
+    now = datetime.now(UTC)
+    scheduler.modify_job("boom", next_run_time=now)
+    scheduler.modify_job("unknown", next_run_time=now)
+    scheduler.modify_job("late", next_run_time=now - timedelta(hours=1))
+    scheduler.wakeup()
+
+    def logged(start: str) -> list[logging.LogRecord]:
+        return [r for r in caplog.records if r.getMessage().startswith(start)]
+
+    wait_for(
+        lambda: logged("job 'boom' failed") and logged("job 'unknown'") and logged("job 'late'")
+    )
+    (boom,) = logged("job 'boom' failed")
+    assert boom.levelno == logging.ERROR
+    first_line, trace = boom.getMessage().split("\n", 1)
+    assert first_line == f"job 'boom' failed for {now.isoformat()}: RuntimeError: disk full"
+    assert "in write" in trace  # the traceback of an unexpected error
+    (unknown,) = logged("job 'unknown'")
+    assert unknown.getMessage() == (
+        f"job 'unknown' failed for {now.isoformat()}: unknown reporter 'nope' (known: fake)"
+    )
+    (late,) = logged("job 'late'")
+    assert late.levelno == logging.WARNING
+    assert late.getMessage() == (
+        f"job 'late' missed its run at {(now - timedelta(hours=1)).isoformat()} "
+        "(later than the misfire grace time)"
+    )
+    assert fakes.reports == []
+
+
+def test_one_instance_at_a_time(
+    make_settings: Any, started: Any, fakes: Any, caplog: pytest.LogCaptureFixture
+) -> None:
+    caplog.set_level(logging.INFO, "catenary.scheduler")
+    scheduler = started(
+        make_settings({"scheduler": {"jobs": [report(interval_minutes=60)]}}), paused=False
+    )
+    fakes.hold = threading.Event()
+    first = datetime.now(UTC)
+    scheduler.modify_job("r", next_run_time=first)
+    scheduler.wakeup()
+    wait_for(lambda: scheduler.get_job("r").next_run_time > first)  # running, held
+    second = datetime.now(UTC)
+    scheduler.modify_job("r", next_run_time=second)
+    scheduler.wakeup()
+    wait_for(lambda: any("still running" in m for m in caplog.messages))
+    assert f"job 'r' is still running: its run at {second.isoformat()} is skipped" in (
+        caplog.messages
+    )
+    fakes.hold.set()
+    wait_for(lambda: any(m.startswith("job 'r' ran for") for m in caplog.messages))
+    assert len(fakes.reports) == 1
+
+
+@pytest.fixture
+def context(engine: Engine, registry: PluginRegistry, make_settings: Any) -> JobContext:
+    settings = make_settings({"notifications": {"channels": [{"notifier": "fake"}]}})
+    return JobContext(settings, registry, engine, UTC, clock=lambda: FIRE + timedelta(seconds=2))
+
+
+def test_evaluate_alerts_skips_without_a_policy(
+    context: JobContext, caplog: pytest.LogCaptureFixture
+) -> None:
+    with caplog.at_level(logging.WARNING, "catenary.jobs"):
+        run_job("evaluate-alerts", {}, context, FIRE)
+    assert caplog.messages == [
+        "evaluate-alerts: no wear-limit policy configured ([limits]); skipped"
+    ]
+
+
+def test_evaluate_alerts_queues_the_new_alerts_in_the_same_transaction(
+    context: JobContext, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    calls: list[tuple[Any, ...]] = []
+
+    def evaluate_all(session: Session, settings: Any, registry: Any, now: datetime) -> Evaluation:
+        calls.append((settings, registry, now))
+        track = Track(line=Line(code="L1"), code="1")
+        alert = Alert(
+            track=track,
+            wire=0,
+            start_chainage_m=0.0,
+            end_chainage_m=50.0,
+            rule="r",
+            level="critical",
+            kind="threshold",
+            value=8.0,
+            threshold=8.5,
+            condition_key="k",
+        )
+        session.add(alert)
+        session.flush()
+        return Evaluation(policy="test", new=[alert.id])
+
+    announced: list[list[int]] = []
+    monkeypatch.setattr(jobs, "evaluate_all", evaluate_all)
+    monkeypatch.setattr(
+        jobs, "announce_alerts", lambda engine, registry, ids: announced.append(ids)
+    )
+    run_job("evaluate-alerts", {}, context, FIRE)
+    assert calls == [(context.settings, context.registry, FIRE + timedelta(seconds=2))]
+    with session_scope(context.engine) as session:
+        (row,) = session.scalars(select(AlertNotification)).all()
+        assert (row.notifier, row.status) == ("fake", "pending")
+    assert announced == [[row.alert_id]]
+
+
+def test_deliver_notifications_job(
+    context: JobContext, fakes: Any, caplog: pytest.LogCaptureFixture
+) -> None:
+    with session_scope(context.engine) as session:
+        session.add(
+            Alert(
+                track=Track(line=Line(code="L1"), code="1"),
+                wire=0,
+                start_chainage_m=0.0,
+                end_chainage_m=50.0,
+                rule="r",
+                level="plan",
+                kind="forecast",
+                value=9.0,
+                threshold=8.5,
+                condition_key="k",
+            )
+        )
+    with caplog.at_level(logging.INFO, "catenary.jobs"):
+        run_job("deliver-notifications", {}, context, FIRE)
+    assert [alert["condition_key"] for alert in fakes.sent] == ["k"]
+    assert caplog.messages == ["notifications: 1 sent, 0 failed"]
+
+
+def test_run_job_needs_the_service() -> None:
+    with pytest.raises(RuntimeError, match="runs under `catenary scheduler` only"):
+        run_job("report", {})
+
+
+def test_an_unknown_reporter_is_a_user_error(context: JobContext) -> None:
+    with pytest.raises(UserError, match=r"^unknown reporter 'nope' \(known: fake\)$"):
+        run_job("report", {"reporter": "nope", "output": "x"}, context, FIRE)
