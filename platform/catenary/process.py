@@ -462,6 +462,11 @@ def process_run(
                     length_m=float(abs(ends[1] - ends[0])),
                     status="complete",
                     error=None,
+                    chainage_aligned=alignment.aligned,
+                    chainage_offset_m=alignment.offset_m,
+                    encoder_scale=alignment.scale,
+                    alignment_matched=alignment.matched,
+                    alignment_rms_m=alignment.residual_rms_m if alignment.aligned else None,
                 )
                 for name, value in values.items():
                     setattr(run, name, value)

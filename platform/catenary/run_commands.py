@@ -90,8 +90,9 @@ def echo_summary(result: ProcessResult) -> None:
         click.echo(
             f"chainage   aligned to the register: {alignment.matched} of "
             f"{alignment.turning_points} registration points on masts, residual RMS "
-            f"{alignment.residual_rms_m:.2f} m (encoder scale {alignment.scale - 1:+.3%}, start "
-            f"{header.start_chainage_m:.1f} m -> {alignment.chainage_m(np.zeros(1))[0]:.1f} m)"
+            f"{alignment.residual_rms_m:.2f} m (encoder error {1 / alignment.scale - 1:+.3%}, "
+            f"start {header.start_chainage_m:.1f} m -> "
+            f"{alignment.chainage_m(np.zeros(1))[0]:.1f} m)"
         )
     elif alignment is not None:
         click.echo(f"chainage   start + encoder distance ({alignment.reason})")

@@ -112,6 +112,14 @@ def _facts(run: Run, spans: Sequence[SpanMeasurement], extent: _Extent) -> list[
         if extent.samples
         else "no samples"
     )
+    if run.chainage_aligned:
+        chainage += (
+            f"; aligned to the register through {run.alignment_matched} registration points "
+            f"(residual RMS {run.alignment_rms_m:.2f} m, encoder error "
+            f"{1.0 / (run.encoder_scale or 1.0) - 1.0:+.3%})"
+        )
+    elif run.chainage_aligned is not None:
+        chainage += "; start chainage + encoder distance (not aligned to a register)"
     samples = f"{extent.rows} in {extent.path.name}"
     if extent.rows > extent.samples:
         samples += f" ({extent.rows - extent.samples} with a vehicle sensor fault, left out)"

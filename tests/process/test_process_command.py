@@ -131,6 +131,9 @@ def test_a_run_is_stored_with_its_spans_and_samples_against_the_truth(
         assert (run.line.code, run.track.code if run.track else None) == ("demo-line", "1")
         assert run.status == "complete" and run.vehicle.name == "demo-rig"
         assert run.rig_calibration.version == 1
+        assert run.chainage_aligned and run.alignment_matched and run.alignment_matched >= 3
+        # chainage per encoder metre: the encoder reads the simulated 0.4 % long
+        assert run.encoder_scale == pytest.approx(1 / 1.004, abs=0.001)
         masts = {m.code: m.chainage_m for m in session.scalars(select(Mast))}
         spans = list(run.span_measurements)
     samples = samples_of(database, isolated_environment, 1)

@@ -257,6 +257,14 @@ class Run(Base):
     status: Mapped[str] = mapped_column(String(16), default="processing")
     samples_path: Mapped[str | None] = mapped_column(String(PATH_LENGTH))
     error: Mapped[str | None] = mapped_column(Text)
+    # how chainage was found: chainage = offset + sign * scale * encoder position; aligned to
+    # the register's masts through ``alignment_matched`` registration points (False: start +
+    # position); None for runs stored before these columns
+    chainage_aligned: Mapped[bool | None]
+    chainage_offset_m: Mapped[float | None] = mapped_column(Float)
+    encoder_scale: Mapped[float | None] = mapped_column(Float)
+    alignment_matched: Mapped[int | None] = mapped_column(Integer)
+    alignment_rms_m: Mapped[float | None] = mapped_column(Float)
 
     line: Mapped[Line] = relationship()
     track: Mapped[Track | None] = relationship()
