@@ -98,6 +98,19 @@ def _masts(row: SpanMeasurement) -> str:
     return f"{row.mast_from} to {row.mast_to}" if row.mast_from else f"span {row.span}"
 
 
+def _span_cells(s: SpanMeasurement) -> list[Cell | str]:
+    """A span's masts, chainages, wire, wire type and minimum: the tables' common cells."""
+    return [
+        Cell(_masts(s), keep=True),
+        number(s.start_chainage_m, 1),
+        number(s.end_chainage_m, 1),
+        Cell(str(s.wire), numeric=True),
+        s.wire_type,
+        number(s.min_residual_thickness_mm),
+        number(s.min_at_chainage_m, 1),
+    ]
+
+
 def _facts(run: Run, spans: Sequence[SpanMeasurement], extent: _Extent) -> list[tuple[str, str]]:
     rig = run.rig_calibration
     line = run.line.code + (f" ({run.line.name})" if run.line.name else "")
@@ -244,17 +257,7 @@ def _exceedance_section(spans: Sequence[SpanMeasurement], limits: _Limits) -> st
     if limits.policy is None:
         thinnest = sorted(spans, key=lambda s: s.min_residual_thickness_mm)[:THINNEST]
         rows: list[list[Cell | str]] = [
-            [
-                Cell(_masts(s), keep=True),
-                number(s.start_chainage_m, 1),
-                number(s.end_chainage_m, 1),
-                Cell(str(s.wire), numeric=True),
-                s.wire_type,
-                number(s.min_residual_thickness_mm),
-                number(s.min_at_chainage_m, 1),
-                number(s.mean_residual_thickness_mm),
-            ]
-            for s in thinnest
+            [*_span_cells(s), number(s.mean_residual_thickness_mm)] for s in thinnest
         ]
         return html.section(
             "Thinnest spans",
@@ -279,13 +282,7 @@ def _exceedance_section(spans: Sequence[SpanMeasurement], limits: _Limits) -> st
     rows = [
         [
             Cell(markup=html.tag(t.level)),
-            Cell(_masts(s), keep=True),
-            number(s.start_chainage_m, 1),
-            number(s.end_chainage_m, 1),
-            Cell(str(s.wire), numeric=True),
-            s.wire_type,
-            number(s.min_residual_thickness_mm),
-            number(s.min_at_chainage_m, 1),
+            *_span_cells(s),
             number(t.residual_thickness_mm),
             number(s.min_residual_thickness_mm - t.residual_thickness_mm),
             f"rule {t.rule_number}: {t.action or t.rule.criterion}",
