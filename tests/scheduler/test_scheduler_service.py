@@ -163,7 +163,7 @@ def test_the_migrations_make_the_job_store_table(engine: Engine) -> None:
     columns = {c["name"] for c in sa.inspect(engine).get_columns("apscheduler_jobs")}
     assert columns == {"id", "next_run_time", "job_state"}
     assert not any("apscheduler" in d for d in migrate.check_models_match(engine))
-    migrate.downgrade(engine, "-1")
+    migrate.downgrade(engine, "5e3a32fbe18d")  # the revision before the job store's
     assert "apscheduler_jobs" not in sa.inspect(engine).get_table_names()
     assert "next_attempt_at" not in {
         c["name"] for c in sa.inspect(engine).get_columns("alert_notifications")
