@@ -63,46 +63,30 @@ def clock() -> Clock:
     return Clock()
 
 
-def add_alert(session: Session, key: str, **columns: Any) -> Alert:
-    """An open alert on line L100 track 1 (line and track made on first use)."""
-    track = session.scalars(select(Track).join(Line).where(Line.code == "L100")).one_or_none()
-    if track is None:
-        track = Track(line=Line(code="L100", name="Test line"), code="1")
-    values: dict[str, Any] = {
-        "track": track,
-        "wire": 0,
-        "mast_from": "M1",
-        "mast_to": "M2",
-        "start_chainage_m": 1000.0,
-        "end_chainage_m": 1050.0,
-        "rule": "db-ril-997#1",
-        "level": "urgent",
-        "kind": "threshold",
-        "value": 9.9,
-        "threshold": 10.0,
-        "raised_at": T0,
-        "condition_key": key,
-    }
-    values.update(columns)
-    alert = Alert(**values)
-    session.add(alert)
-    session.flush()
-    return alert
+@pytest.fixture
+def alert_in(build: Any) -> Callable[..., Alert]:
+    """``alert_in(session, key, **columns)``: an open alert on line L100 track 1 (made on
+    first use) added to ``session`` and flushed, not committed."""
+
+    def add(session: Session, key: str, **columns: Any) -> Alert:
+        track = session.scalars(select(Track).join(Line).where(Line.code == "L100")).one_or_none()
+        if track is None:
+            track = Track(line=Line(code="L100", name="Test line"), code="1")
+        alert = build.alert(track, key, **columns)
+        session.add(alert)
+        session.flush()
+        return alert
+
+    return add
 
 
 @pytest.fixture
-def alert_in() -> Callable[..., Alert]:
-    """``alert_in(session, key, **columns)``: an alert added to ``session``, not committed."""
-    return add_alert
-
-
-@pytest.fixture
-def alerts(engine: Engine) -> Callable[..., int]:
+def alerts(engine: Engine, alert_in: Callable[..., Alert]) -> Callable[..., int]:
     """``alerts(key, **columns)`` commits an alert and returns its id."""
 
     def make(key: str, **columns: Any) -> int:
         with session_scope(engine) as session:
-            return add_alert(session, key, **columns).id
+            return alert_in(session, key, **columns).id
 
     return make
 
