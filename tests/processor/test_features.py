@@ -440,6 +440,22 @@ def test_cloud_texture_on_the_sky_pixels_does_not_move_a_boundary() -> None:
     assert np.max(np.abs(f.face_right_px - (526.3 + phases))) < 0.05
 
 
+def test_one_dark_pixel_of_sky_beside_a_wire_does_not_move_its_boundary() -> None:
+    """White daylight, textured sky: one sky pixel 5 px beyond the silhouette darker by 5 DN
+    (of 110) passes the boundary's level, with the sky between it and the wire below it; the
+    boundary used to be taken 2 px into the sky from it (its level from the pixels between
+    it and the wire, not the wire's step), which put the face search over the boundary's
+    own edge: the wire lost its face."""
+    phases = np.linspace(0.0, 1.0, 20, endpoint=False)
+    lines = np.stack([silhouette(500 + p, 535 + p, 512 + p, 526.3 + p, 60.0) for p in phases])
+    lines[np.arange(phases.shape[0]), np.rint(540.0 + phases).astype(np.intp)] -= 5.0
+    f = extract_features(np.rint(lines * 200.0).astype(np.uint16), 16)
+    assert len(f) == phases.shape[0]
+    assert np.all(f.has_face)
+    assert np.max(np.abs(f.right_px - (535.0 + phases))) < 0.4
+    assert np.max(np.abs(f.face_right_px - (526.3 + phases))) < 0.05
+
+
 # -- the API --------------------------------------------------------------------------------
 
 

@@ -873,6 +873,9 @@ def _fine(
     first_k = np.concatenate([at_l + _SKY_PX, own - at_r])  # the search starts past the sky
     above = dev > _float32_below(level2)
     above &= k >= first_k
+    # a significant pixel starts the wire only when the next one is significant too: one
+    # pixel of the sky's texture past the level, then the sky again, is not the wire's edge
+    above[:-1] &= above[1:]
     weight = (count - k).astype(np.min_scalar_type(count))
     k0 = count - (above * weight).max(axis=0).astype(np.intp)  # the first above (count: none)
     inside = (k0 >= first_k) & (k0 < count)
