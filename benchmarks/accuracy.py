@@ -106,6 +106,18 @@ CASES = [
         note="R 600 m, decreasing chainage",
     ),
     Case(
+        "new-wire",
+        {"seed": 112, "overlap": False},
+        {"wear_base_mm": (0.0, 0.0)},
+        note="faces 0-2 mm: undulation and hot spots only",
+    ),
+    Case(
+        "new-wire-white",
+        {"seed": 113, "lighting": "day-white", "overlap": False},
+        {"wear_base_mm": (0.0, 0.0)},
+        note="the same by white daylight",
+    ),
+    Case(
         "blind-camera",
         {
             "seed": 111,

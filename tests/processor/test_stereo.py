@@ -12,7 +12,7 @@ are 0.05 mm RMS and 0.10 mm worst for the residual thickness, 2 mm for height an
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -68,9 +68,20 @@ class Section:
             )
 
 
-def render(settings: dict, around: str = "overlap", half_length_m: float = 75.0) -> Section:
-    """The scans within ``half_length_m`` of the overlap's middle mast (or the run's middle)."""
+def render(
+    settings: dict, around: str = "overlap", half_length_m: float = 75.0, new_wire: bool = False
+) -> Section:
+    """The scans within ``half_length_m`` of the overlap's middle mast (or the run's middle);
+    ``new_wire``: contact wires without wear."""
     sim = Simulation(parse_settings({"speed_kmh": SPEED_KMH, **settings}))
+    if new_wire:
+        unworn = {
+            "wear_base_mm": 0.0,
+            "wear_waves": np.zeros((0, 3)),
+            "wear_spots": np.zeros((0, 3)),
+        }
+        wires = tuple(replace(w, **unworn) if w.contact else w for w in sim.scene.wires)
+        sim.scene = replace(sim.scene, wires=wires)
     chainage = sim.motion.chainage_m(sim.motion.scan_times(0, sim.scans))
     if around == "overlap":
         centre = sim.scene.masts[sim.scene.overlap_masts[1]].chainage_m
@@ -285,3 +296,26 @@ def test_a_block_without_a_rig_camera_is_refused(rig: Rig, overlap: Section) -> 
     broken = ScanBlock(block.first_scan, block.position_m, block.time_s, cameras, block.vehicle)
     with pytest.raises(UserError, match="no camera 'cam2'"):
         LineScanProcessor(rig).process(broken)
+
+
+@pytest.mark.parametrize(
+    ("lighting", "median_mm", "p90_mm"), [("day-white", 0.3, 0.5), ("night", 2.0, 2.5)]
+)
+def test_a_new_wire_is_located_at_its_lowest_point(
+    rig: Rig, lighting: str, median_mm: float, p90_mm: float
+) -> None:
+    """A new wire has no worn face: its point is the axis from the silhouettes, lowered by
+    the wire's radius (half the mean of the widths looked for: 6.35 mm; this CTA120 has
+    6.7). Measured here: height error median 0.0 mm, 90 % within 0.11 mm in white daylight;
+    at night, where the round sides are too dark to see and the silhouette is the lit
+    bottom, median -1.6 mm, 90 % within 1.9 mm. Before, every point was the axis, 5-6.5 mm
+    above the wire."""
+    section = render(
+        {"seed": 41, "lighting": lighting, "overlap": False}, "middle", 20.0, new_wire=True
+    )
+    s = score(section, process(rig, section, 1024), rig)
+    assert s.false_wires == 0
+    assert s.recall >= 0.98
+    assert np.all(np.abs(s.thickness[np.isfinite(s.thickness)]) < 0.05)  # no face seen
+    assert abs(np.median(s.height)) < median_mm
+    assert np.percentile(np.abs(s.height), 90) < p90_mm

@@ -33,8 +33,9 @@ over the scans of a block:
 5. **Triangulate** each accepted point from all the cameras that confirmed it (least squares
    on the rays, then Gauss-Newton on the reprojection error:
    :func:`catenary_linescan.triangulation.triangulate`), from the worn face's midpoints where
-   two cameras at least saw the face (the contact point), with a leave-one-out check that
-   drops a camera whose image the others do not predict.
+   two cameras at least saw the face (the contact point), else from the middles of the
+   wire's silhouettes (its axis), with a leave-one-out check that drops a camera whose image
+   the others do not predict.
 6. **Two views**: points of two cameras made of the detections left unused, where both saw a
    face, are returned unverified (``Matches.verified``): tracking takes them only where they
    continue a wire it follows (a blind camera and a missed detection at once).
@@ -130,7 +131,7 @@ class MatchConfig:
         Candidates of opposite (non-zero) polarity never match.
     contact_from_faces : bool
         Triangulate the contact point from the face's midpoints where two cameras at least
-        saw the face (else from the candidates' centres).
+        saw the face (else the wire's axis from the middles of its silhouettes).
     support_merged : bool
         Let merged silhouettes support points (step 4 of the module docstring).
     covering_pairs : bool
@@ -270,7 +271,8 @@ class Matches:
         where the camera did not confirm the point.
     x_mm, z_mm : ndarray, shape (m,)
         Roof-frame position [mm] from all confirming cameras: the worn face's centre where two
-        cameras saw the face (``from_face``), else the point the candidates' centres give.
+        cameras saw the face (``from_face``), else the wire's axis (the middles of its
+        silhouettes: a camera's face centre is never mixed with another's silhouette).
     from_face : ndarray of bool, shape (m,)
         Whether the position comes from the face's midpoints.
     cameras : ndarray of int, shape (m,)
@@ -1260,13 +1262,20 @@ def _triangulate_matches(
     built from moves the hypothesis, and the other cameras can still fall in their windows
     of it; at the least-squares point the outlier's error is shared among all the cameras.
     """
-    centre, face_left, face_right = _gather(
-        scan, slot, candidates.centre_px, candidates.face_left_px, candidates.face_right_px
+    left, right, face_left, face_right = _gather(
+        scan,
+        slot,
+        candidates.left_px,
+        candidates.right_px,
+        candidates.face_left_px,
+        candidates.face_right_px,
     )
     face_mid = 0.5 * (face_left + face_right)
     face_views = np.isfinite(face_mid).sum(axis=1)
     from_face = (face_views >= 2) & config.contact_from_faces
-    u = np.where(from_face[:, np.newaxis], face_mid, centre)
+    # the contact point from the faces, else the axis from every camera's silhouette (a
+    # camera's face centre lies a radius below the axis: the two are never mixed)
+    u = np.where(from_face[:, np.newaxis], face_mid, 0.5 * (left + right))
     sigma = float(np.sqrt(np.mean(sigma_px**2))) if sigma_px.size else 0.1
     # on ideal coordinates, with the distortion-free twins of the cameras: the same least
     # squares (the radial term changes the pixel scale by a part in a thousand at most)

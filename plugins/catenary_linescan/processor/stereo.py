@@ -28,7 +28,9 @@ Tracking holds back the points of the last metres until they are decided:
 ``feature_sigma_px``       features' centre uncertainty for the confirmation window (0.15)
 ``confirm_sigmas``         confirmation window in standard deviations (4)
 ``floor_px``               narrowest confirmation window (0.6)
-``wire_width_mm``          [min, max] contact wire widths the features look for ([10.6, 14.8])
+``wire_width_mm``          [min, max] contact wire widths the features look for ([10.6, 14.8]);
+                           half their mean is the radius of a wire whose face no two cameras
+                           saw (a new wire): set both to the line's wire width where it has one
 ``min_track_m``            shortest track taken for a wire (``tracking.MIN_TRACK_M``)
 ``max_gap_m``              longest gap a track bridges (1.0)
 ``messenger_gap_mm``       height above the lowest contact wire of a messenger (300)
@@ -57,6 +59,7 @@ from catenary_linescan.rig import Rig, read_rig
 from .features import FeatureConfig, extract_features
 from .matching import (
     MatchConfig,
+    Matches,
     camera_sigmas_px,
     face_widths_mm,
     match,
@@ -242,6 +245,7 @@ class LineScanProcessor:
         roll = np.where(np.isfinite(roll), roll, 0.0)
         if roll.shape != (n,):
             roll = np.zeros(n)
+        matches = contact_from_axis(matches, roll, 0.25 * sum(self.config.wire_width_mm))
         widths = face_widths_mm(
             self.cameras,
             self.tables,
@@ -291,6 +295,20 @@ class LineScanProcessor:
                 100.0 * self.config.table_tolerance,
             )
             self._warned[c] = True
+
+
+def contact_from_axis(matches: Matches, roll_rad: np.ndarray, radius_mm: float) -> Matches:
+    """The contact point of the matches located by their axis (no face: ``from_face``
+    false): a round wire's lowest point, ``radius_mm`` below the axis along the track frame's
+    vertical, which the body's roll ``roll_rad`` (per scan of the block, shape (n,), positive:
+    left side up) tilts to ``(-sin φ, cos φ)`` in the roof frame."""
+    axis = ~matches.from_face
+    phi = roll_rad[matches.scan]
+    return replace(
+        matches,
+        x_mm=np.where(axis, matches.x_mm + radius_mm * np.sin(phi), matches.x_mm),
+        z_mm=np.where(axis, matches.z_mm - radius_mm * np.cos(phi), matches.z_mm),
+    )
 
 
 def create(rig_path: Path, settings: Mapping[str, Any]) -> LineScanProcessor:
