@@ -118,6 +118,12 @@ CASES = [
         note="the same by white daylight",
     ),
     Case(
+        "new-wire-filter",
+        {"seed": 114, "lighting": "day-filter", "overlap": False},
+        {"wear_base_mm": (0.0, 0.0)},
+        note="the same behind the band-pass filter",
+    ),
+    Case(
         "blind-camera",
         {
             "seed": 111,
