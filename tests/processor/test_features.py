@@ -49,19 +49,7 @@ def simulate(lighting: str, wear_mm: float | None, bit_depth: int = 8, seed: int
         parse_settings({"length_m": 8.0, "lighting": lighting, "seed": seed, "chunk_scans": SCANS})
     )
     if wear_mm is not None:
-        wires = tuple(
-            dataclasses.replace(
-                w,
-                wear_base_mm=float(wear_mm),
-                wear_waves=np.zeros((0, 3)),
-                wear_spots=np.zeros((0, 3)),
-                max_wear_mm=max(12.0, float(wear_mm)),
-            )
-            if w.contact
-            else w
-            for w in sim.scene.wires
-        )
-        sim.scene = dataclasses.replace(sim.scene, wires=wires)
+        sim.scene = sim.scene.with_constant_wear(wear_mm)
     if bit_depth != 8:
         scale = 2.0 ** (bit_depth - 8)
         cameras = tuple(

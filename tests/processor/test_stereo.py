@@ -12,7 +12,7 @@ are 0.05 mm RMS and 0.10 mm worst for the residual thickness, 2 mm for height an
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -75,13 +75,7 @@ def render(
     ``new_wire``: contact wires without wear."""
     sim = Simulation(parse_settings({"speed_kmh": SPEED_KMH, **settings}))
     if new_wire:
-        unworn = {
-            "wear_base_mm": 0.0,
-            "wear_waves": np.zeros((0, 3)),
-            "wear_spots": np.zeros((0, 3)),
-        }
-        wires = tuple(replace(w, **unworn) if w.contact else w for w in sim.scene.wires)
-        sim.scene = replace(sim.scene, wires=wires)
+        sim.scene = sim.scene.with_constant_wear(0.0)
     chainage = sim.motion.chainage_m(sim.motion.scan_times(0, sim.scans))
     if around == "overlap":
         centre = sim.scene.masts[sim.scene.overlap_masts[1]].chainage_m

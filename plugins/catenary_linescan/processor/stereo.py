@@ -91,6 +91,11 @@ class ProcessorConfig:
     width_tolerance_mm: float = 0.25
     table_tolerance: float = 0.03
 
+    @property
+    def wire_radius_mm(self) -> float:
+        """Radius assumed for a wire whose face no two cameras saw: half the mean width."""
+        return 0.25 * (self.wire_width_mm[0] + self.wire_width_mm[1])
+
     @classmethod
     def from_settings(cls, settings: Mapping[str, Any]) -> ProcessorConfig:
         """Parse the processor settings (module docstring); ``UserError`` names a bad key."""
@@ -245,7 +250,7 @@ class LineScanProcessor:
         roll = np.where(np.isfinite(roll), roll, 0.0)
         if roll.shape != (n,):
             roll = np.zeros(n)
-        matches = contact_from_axis(matches, roll, 0.25 * sum(self.config.wire_width_mm))
+        matches = contact_from_axis(matches, roll, self.config.wire_radius_mm)
         widths = face_widths_mm(
             self.cameras,
             self.tables,

@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -312,6 +312,23 @@ class Scene:
     @property
     def contact_ids(self) -> list[int]:
         return [w.id for w in self.wires if w.contact]
+
+    def with_constant_wear(self, wear_mm: float) -> Scene:
+        """The same scene with every contact wire's face ``wear_mm`` wide [mm] throughout (no
+        undulation, no hot spots; 0: new wires)."""
+        wires = tuple(
+            replace(
+                w,
+                wear_base_mm=float(wear_mm),
+                wear_waves=np.zeros((0, 3)),
+                wear_spots=np.zeros((0, 3)),
+                max_wear_mm=max(w.max_wear_mm, float(wear_mm)),
+            )
+            if w.contact
+            else w
+            for w in self.wires
+        )
+        return replace(self, wires=wires)
 
     def curvature_at(self, chainage_m: FloatArray) -> FloatArray:
         """Track curvature [1/m] (+: bending right) at ``[n]`` chainages."""
