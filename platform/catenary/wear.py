@@ -1,4 +1,5 @@
-"""Stagger-angle correction of the wear width (the paper's section 4.2, eq. 11-12).
+"""Stagger-angle correction of the wear width (the paper's section 4.2, eq. 11-12), and the
+along-track screen of the widths.
 
 The scanning plane of the cameras is perpendicular to the track; a contact wire crosses it at
 the angle ``θ`` it makes with the track in plan, so the worn face measured in the plane is
@@ -28,23 +29,41 @@ The stagger must be in the track frame (after vehicle compensation): the car bod
 sway moves the roof frame by ~10 mm over a few metres, a gradient of the same order as the
 wire's own. A streaming caller gives each call ``window_m`` of samples on either side of the
 ones it keeps.
+
+**Screen.** A wire's wear changes along the track over decimetres and more; a fitting behind
+the wire (a dropper's or registration clamp) disturbs the images of the worn face's edges for
+a few scans: the wire's side between its face and the clamp is a dark strip narrower than the
+optical blur, which no view can tell from a narrower face (the face reads up to 0.1 mm
+narrower in every camera, 0.14 mm of residual thickness near the wear limit).
+:func:`screened_wear_width_mm` leaves such excursions out, as a Hampel filter along the track:
+a width departing from the median of its wire's widths within ``SCREEN_HALF_WINDOW_M`` by more
+than ``SCREEN_MADS`` times their noise. The row keeps its position; only its width goes.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
+
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
 __all__ = [
     "DEFAULT_WINDOW_M",
     "MIN_WINDOW_SAMPLES",
+    "SCREEN_HALF_WINDOW_M",
+    "SCREEN_NOISE_HALF_WINDOW_M",
     "corrected_wear_width_mm",
+    "screened_wear_width_by_wire_mm",
+    "screened_wear_width_mm",
     "stagger_angle_by_wire_rad",
     "stagger_angle_rad",
 ]
 
 FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.intp]
 
 DEFAULT_WINDOW_M = 2.0
 """Length of track over which the stagger gradient is fitted [m]. Long enough to average the
@@ -60,6 +79,30 @@ ONE_SIDED_PREFERENCE = 0.5
 fraction of the centred one's: clearly better (a kink in the centred window), not by chance.
 On a smooth curve (an offset arc in a curve) all three fit alike and the centred window,
 unbiased there, is kept."""
+
+SCREEN_HALF_WINDOW_M = 0.1
+"""Half the length of track over which a wear width is compared with its neighbours [m]
+(:func:`screened_wear_width_mm`). A wire's wear changes over decimetres to metres (hot spots
+at registrations span one to a few metres); a fitting that disturbs the worn face's edges in
+the images (a dropper's or registration clamp behind the wire, 15-50 mm along the track) lasts
+a few scans. The window is four times that at least, so that its median is the wire's."""
+
+SCREEN_NOISE_HALF_WINDOW_M = 0.5
+"""Half the length of track over which the widths' noise is estimated [m]: long enough that a
+fitting's few scans do not raise it, short enough to follow the lighting along the run. The
+screen looks this far on either side of a width."""
+
+SCREEN_MADS = 4.0
+"""A width further than this many noise deviations from its window's median is an excursion
+(the Hampel identifier's usual 3, with room)."""
+
+SCREEN_FLOOR_MM = 0.04
+"""Least departure from the window's median screened out [mm]: where the widths are quieter
+than this over a window, four deviations would be below what matters to the thickness."""
+
+_SCREEN_MAX_SIDE = 128
+"""Most samples on either side of a width that a window holds (a train at a standstill
+repeats one place)."""
 
 _BINS_PER_WINDOW = 20
 
@@ -214,16 +257,9 @@ def stagger_angle_by_wire_rad(
     ndarray, shape (m,)
         ``θ`` [rad] of each row, from the rows of its own wire only.
     """
-    wires = np.asarray(wire)
-    position = np.asarray(position_m, dtype=np.float64)
-    stagger = np.asarray(stagger_mm, dtype=np.float64)
-    if not (wires.shape == position.shape == stagger.shape) or wires.ndim != 1:
-        raise ValueError("wire, position_m and stagger_mm must share one (m,) shape")
-    theta = np.full(position.shape, np.nan)
-    for number in np.unique(wires):  # one loop step per wire, not per sample
-        rows = np.flatnonzero(wires == number)
-        theta[rows] = stagger_angle_rad(position[rows], stagger[rows], window_m)
-    return theta
+    return _per_wire(
+        wire, position_m, ("stagger_mm", stagger_mm), lambda p, v: stagger_angle_rad(p, v, window_m)
+    )
 
 
 def corrected_wear_width_mm(w_mm: ArrayLike, theta_rad: ArrayLike) -> FloatArray:
@@ -244,3 +280,118 @@ def corrected_wear_width_mm(w_mm: ArrayLike, theta_rad: ArrayLike) -> FloatArray
     w = np.asarray(w_mm, dtype=np.float64)
     theta = np.asarray(theta_rad, dtype=np.float64)
     return np.asarray(w * np.cos(theta), dtype=np.float64)
+
+
+def screened_wear_width_mm(position_m: ArrayLike, width_mm: ArrayLike) -> FloatArray:
+    """One wire's wear widths with short excursions along the track left out (NaN).
+
+    A Hampel filter: a width further from the median of the widths within
+    ``SCREEN_HALF_WINDOW_M`` of it (itself included) than ``SCREEN_MADS`` times their noise,
+    and than ``SCREEN_FLOOR_MM``, is not the wire's wear but a fitting's disturbance of the
+    face's edges: at a dropper clamp the wire's dark side between its face and the clamp
+    behind it is narrower than the optical blur, and the face reads up to 0.1 mm narrower, in
+    every camera. Its row keeps its position; only the width is dropped. The noise is the
+    robust deviation of the differences between neighbouring widths within
+    ``SCREEN_NOISE_HALF_WINDOW_M`` (the wire's own gradient is not noise; an excursion's
+    two steps are two differences of many). An excursion shorter than half the window is
+    screened; a change that lasts longer (new wear, a splice, a hot spot) is kept. A window
+    with fewer than ``MIN_WINDOW_SAMPLES`` widths screens nothing.
+
+    Parameters
+    ----------
+    position_m : array_like, shape (m,)
+        Position of each sample along the track [m], any order.
+    width_mm : array_like, shape (m,)
+        The wire's wear width at each sample [mm]; NaN samples are ignored (and stay NaN).
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        The widths [mm], NaN where screened out.
+    """
+    position = np.asarray(position_m, dtype=np.float64)
+    width = np.asarray(width_mm, dtype=np.float64)
+    if position.shape != width.shape or position.ndim != 1:
+        raise ValueError(
+            f"position_m {position.shape} and width_mm {width.shape} must be one (m,) shape"
+        )
+    out = width.copy()
+    valid = np.flatnonzero(np.isfinite(position) & np.isfinite(width))
+    if valid.shape[0] < MIN_WINDOW_SAMPLES:
+        return out
+    order = valid[np.argsort(position[valid], kind="stable")]
+    p, w = position[order], width[order]
+    median, count = _rolling_median(p, w, p, SCREEN_HALF_WINDOW_M)
+    steps, _ = _rolling_median(
+        0.5 * (p[1:] + p[:-1]), np.abs(np.diff(w)), p, SCREEN_NOISE_HALF_WINDOW_M
+    )
+    noise = 1.4826 / math.sqrt(2.0) * steps
+    excursion = np.abs(w - median) > np.maximum(SCREEN_MADS * noise, SCREEN_FLOOR_MM)
+    excursion &= count >= MIN_WINDOW_SAMPLES
+    out[order[excursion]] = np.nan
+    return out
+
+
+def _rolling_median(
+    position: FloatArray, values: FloatArray, at: FloatArray, half_window_m: float
+) -> tuple[FloatArray, IntArray]:
+    """Median ``(k,)`` of the ``values`` (``(m,)``, ``m >= 1``, sorted by ``position``)
+    within ``half_window_m`` of each of the sorted positions ``at`` ``(k,)``, and how many
+    there are. A window holds at most ``_SCREEN_MAX_SIDE`` values on either side of index
+    ``i`` for ``at[i]`` (at a standstill every scan is at one place)."""
+    i = np.arange(at.shape[0])
+    first = np.maximum(np.searchsorted(position, at - half_window_m), i - _SCREEN_MAX_SIDE)
+    stop = np.minimum(
+        np.searchsorted(position, at + half_window_m, side="right"), i + _SCREEN_MAX_SIDE + 1
+    )
+    count = np.maximum(stop - first, 0)
+    span = max(int(count.max()), 1)
+    padded = np.concatenate([values, np.full(span, np.inf)])
+    window = sliding_window_view(padded, span)[first]  # (k, span), a copy
+    window[np.arange(span) >= count[:, np.newaxis]] = np.inf
+    window.sort(axis=1)  # the padding last; ten times faster than nanmedian
+    rows = np.arange(at.shape[0])
+    low = window[rows, np.maximum(count - 1, 0) // 2]
+    high = window[rows, count // 2]
+    return np.where(count > 0, 0.5 * (low + high), np.nan), count
+
+
+def screened_wear_width_by_wire_mm(
+    wire: ArrayLike, position_m: ArrayLike, width_mm: ArrayLike
+) -> FloatArray:
+    """:func:`screened_wear_width_mm` of every wire of a table of observations.
+
+    Parameters
+    ----------
+    wire : array_like of int, shape (m,)
+        Wire number of each row.
+    position_m, width_mm : array_like, shape (m,)
+        As in :func:`screened_wear_width_mm`.
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        Each row's width [mm], screened against the rows of its own wire only.
+    """
+    return _per_wire(wire, position_m, ("width_mm", width_mm), screened_wear_width_mm)
+
+
+def _per_wire(
+    wire: ArrayLike,
+    position_m: ArrayLike,
+    values: tuple[str, ArrayLike],
+    along_track: Callable[[FloatArray, FloatArray], FloatArray],
+) -> FloatArray:
+    """``along_track(position, values)`` of the rows of each wire number, in place of its rows
+    (``values``: their name, for the error, and the values)."""
+    name, given = values
+    wires = np.asarray(wire)
+    position = np.asarray(position_m, dtype=np.float64)
+    value = np.asarray(given, dtype=np.float64)
+    if not (wires.shape == position.shape == value.shape) or wires.ndim != 1:
+        raise ValueError(f"wire, position_m and {name} must share one (m,) shape")
+    out = np.full(position.shape, np.nan)
+    for number in np.unique(wires):  # one loop step per wire, not per sample
+        rows = np.flatnonzero(wires == number)
+        out[rows] = along_track(position[rows], value[rows])
+    return out

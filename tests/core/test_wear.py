@@ -1,4 +1,5 @@
-"""Stagger-angle correction (paper eq. 11-12) from the measured stagger gradient."""
+"""Stagger-angle correction (paper eq. 11-12) from the measured stagger gradient; the
+along-track screen of the wear widths."""
 
 from __future__ import annotations
 
@@ -9,7 +10,10 @@ import pytest
 
 from catenary.wear import (
     DEFAULT_WINDOW_M,
+    SCREEN_HALF_WINDOW_M,
     corrected_wear_width_mm,
+    screened_wear_width_by_wire_mm,
+    screened_wear_width_mm,
     stagger_angle_by_wire_rad,
     stagger_angle_rad,
 )
@@ -144,3 +148,95 @@ def test_correction_is_w_cos_theta() -> None:
     )
     assert np.isnan(corrected_wear_width_mm(np.nan, 0.1))
     assert np.isnan(corrected_wear_width_mm(5.0, np.nan))
+
+
+def worn_wire(length_m: float = 60.0, noise_mm: float = 0.012, seed: int = 3):
+    """Positions and wear widths of one wire: a base, undulation over metres, a hot spot of
+    a metre and a half, and the measurement's noise (the benchmark's 0.012 mm RMS)."""
+    rng = np.random.default_rng(seed)
+    position = START_M + np.arange(0.0, length_m, SPACING_M)
+    x = position - START_M
+    width = (
+        9.0 + 0.3 * np.sin(2.0 * math.pi * x / 7.0) + 1.5 * np.exp(-0.5 * ((x - 30.0) / 0.6) ** 2)
+    )
+    return position, width + rng.normal(0.0, noise_mm, x.shape)
+
+
+def test_a_few_scans_off_their_neighbours_are_screened_out() -> None:
+    position, width = worn_wire()
+    # a dropper clamp: three scans whose face reads 0.1 mm narrower (the cameras' pull)
+    clamp = np.flatnonzero(
+        (position >= START_M + 20.0) & (position < START_M + 20.0 + 3 * SPACING_M)
+    )
+    width[clamp] -= 0.1
+    screened = screened_wear_width_mm(position, width)
+    assert clamp.shape == (3,)
+    assert np.all(np.isnan(screened[clamp]))
+    kept = np.ones(width.shape, dtype=bool)
+    kept[clamp] = False
+    # the wire's own changes (undulation, the hot spot's flanks) are kept, and its noise
+    # but for the odd sample four deviations out
+    out = np.isnan(screened[kept])
+    assert np.count_nonzero(out) <= 1e-3 * out.shape[0]
+    np.testing.assert_array_equal(screened[kept][~out], width[kept][~out])
+
+
+def test_a_step_in_the_wear_and_a_short_stretch_of_new_wear_are_kept() -> None:
+    position, width = worn_wire(seed=4)
+    x = position - START_M
+    width += np.where(x > 40.0, 0.5, 0.0)  # a splice: the wear steps
+    # new wear over a little more than the window: longer than any fitting
+    width += np.where((x > 10.0) & (x < 10.0 + 3.0 * SCREEN_HALF_WINDOW_M), 0.3, 0.0)
+    screened = screened_wear_width_mm(position, width)
+    changes = (np.abs(x - 40.0) < 0.5) | ((x > 9.5) & (x < 10.8))
+    assert np.all(np.isfinite(screened[changes]))
+    assert np.count_nonzero(np.isnan(screened)) <= 1e-3 * x.shape[0]
+
+
+def test_the_screen_follows_the_noise_of_the_widths() -> None:
+    # noisier widths (0.05 mm RMS): a 0.08 mm excursion is within their noise and stays,
+    # a 0.4 mm one does not
+    position, width = worn_wire(noise_mm=0.05, seed=6)
+    at = np.flatnonzero(position >= START_M + 20.0)[:2]
+    small, large = width.copy(), width.copy()
+    small[at] -= 0.08
+    large[at] -= 0.4
+    assert np.all(np.isfinite(screened_wear_width_mm(position, small)[at]))
+    assert np.all(np.isnan(screened_wear_width_mm(position, large)[at]))
+
+
+def test_the_screen_takes_any_order_keeps_nan_and_needs_a_few_samples() -> None:
+    position, width = worn_wire(length_m=10.0)
+    width[100] += 0.2
+    width[::40] = np.nan
+    expected = screened_wear_width_mm(position, width)
+    assert np.isnan(expected[100])
+    order = np.random.default_rng(8).permutation(position.shape[0])
+    np.testing.assert_array_equal(
+        screened_wear_width_mm(position[order], width[order]), expected[order]
+    )
+    assert np.array_equal(np.isnan(expected), np.isnan(width) | (np.arange(width.shape[0]) == 100))
+    few = np.array([9.0, 9.0, 9.5, 9.0])
+    np.testing.assert_array_equal(screened_wear_width_mm([0.0, 0.01, 0.02, 0.03], few), few)
+    # at a standstill every scan is at one place: the window holds its nearest samples
+    still = np.full(5000, 9.0)
+    still[2500] = 9.3
+    assert np.flatnonzero(np.isnan(screened_wear_width_mm(np.zeros(5000), still))).tolist() == [
+        2500
+    ]
+    with pytest.raises(ValueError, match="shape"):
+        screened_wear_width_mm([0.0, 1.0], [1.0])
+
+
+def test_each_wire_is_screened_against_its_own_widths() -> None:
+    position, width_a = worn_wire(length_m=20.0)
+    _, width_b = worn_wire(length_m=20.0, seed=9)
+    width_b += 2.0  # another wire, more worn: mixed, every row would look off
+    width_a[200] -= 0.1
+    wire = np.repeat([0, 1], position.shape[0])
+    positions = np.concatenate([position, position])
+    widths = np.concatenate([width_a, width_b])
+    order = np.argsort(positions, kind="stable")  # interleaved, as rows of a table come
+    screened = np.empty_like(widths)
+    screened[order] = screened_wear_width_by_wire_mm(wire[order], positions[order], widths[order])
+    assert np.flatnonzero(np.isnan(screened)).tolist() == [200]
