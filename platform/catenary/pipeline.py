@@ -13,7 +13,11 @@ gives :class:`TrackSamples`:
    measured stagger gradient of the row's own wire, fitted with ``window_m`` of the wire's
    samples on either side: a wire's rows are held until it has been seen ``window_m``
    further (or until the train is ``history_m + window_m`` past its last row: it has ended),
-   and the last ``window_m`` of rows already given out are kept as the left context.
+   and the last ``window_m`` of rows already given out are kept as the left context;
+3. **screen** (``catenary.wear.screened_wear_width_mm``): a width that departs from the
+   widths of its wire on either side for a few scans (a fitting's disturbance) is left out
+   (NaN); the row stays. Rows are held ``SCREEN_NOISE_HALF_WINDOW_M`` longer (how far the
+   screen looks), so that it sees the stagger-corrected widths of both sides.
 
 Memory is bounded by ``history_m`` of scans and ``2 window_m`` of rows per wire, whatever the
 run's length. Residual thickness and chainage come later, once the run's chainage is aligned
@@ -22,14 +26,20 @@ run's length. Residual thickness and chainage come later, once the run's chainag
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from catenary.domain import FloatArray, ScanBlock, VehicleGeometry, WireObservations
 from catenary.vehicle import roof_to_track
-from catenary.wear import DEFAULT_WINDOW_M, corrected_wear_width_mm, stagger_angle_rad
+from catenary.wear import (
+    DEFAULT_WINDOW_M,
+    SCREEN_NOISE_HALF_WINDOW_M,
+    corrected_wear_width_mm,
+    screened_wear_width_mm,
+    stagger_angle_rad,
+)
 
 __all__ = ["VEHICLE_HISTORY_M", "MeasurementChain", "TrackSamples"]
 
@@ -46,7 +56,8 @@ class TrackSamples:
     """Rows of contact wire samples in the track frame, each ``(m,)``.
 
     ``wear_width_mm`` is across the wire (stagger-angle corrected); NaN where the cameras
-    did not agree on the face or the angle could not be fitted, 0.0 where no face was seen.
+    did not agree on the face, the angle could not be fitted or the screen left it out, 0.0
+    where no face was seen.
     """
 
     scan: IntArray
@@ -199,22 +210,23 @@ class MeasurementChain:
             ready = (
                 np.ones(pending.rows, dtype=bool)
                 if final or idle
-                else pending.position_m <= frontier - self.window_m
+                else pending.position_m <= frontier - self.window_m - SCREEN_NOISE_HALF_WINDOW_M
             )
             if not ready.any():
                 continue
             context = self._context.get(wire, TrackSamples.empty())
             both = TrackSamples.concatenate([context, pending])
             theta = stagger_angle_rad(both.position_m, both.stagger_mm, self.window_m)
-            theta_ready = theta[context.rows :][ready]
-            done = pending.take(ready)
-            done = TrackSamples(
-                **{
-                    **{f.name: getattr(done, f.name) for f in fields(done)},
-                    "wear_width_mm": corrected_wear_width_mm(done.wear_width_mm, theta_ready),
-                }
+            # the context's widths are corrected already (and kept unscreened)
+            corrected = np.concatenate(
+                [
+                    context.wear_width_mm,
+                    corrected_wear_width_mm(pending.wear_width_mm, theta[context.rows :]),
+                ]
             )
-            out.append(done)
+            screened = screened_wear_width_mm(both.position_m, corrected)
+            done = replace(pending.take(ready), wear_width_mm=corrected[context.rows :][ready])
+            out.append(replace(done, wear_width_mm=screened[context.rows :][ready]))
             self._pending[wire] = pending.take(~ready)
             given = TrackSamples.concatenate([context, done])
             last = float(np.max(done.position_m))
