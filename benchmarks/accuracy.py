@@ -11,7 +11,9 @@ own seeds) and compares it with the ground truth, per case:
 - the processor (features, matching, tracking) turns the run's blocks into wire observations
   in the roof frame; the core then applies the vehicle compensation (``roof_to_track`` with
   the noisy displacement sensors), the stagger-angle correction (``catenary.wear``: θ from the
-  measured stagger gradient) and the wire type's residual thickness, as the pipeline does.
+  measured stagger gradient), the along-track screen of the widths (``catenary.wear``: a width
+  that departs from its neighbours for a few scans, at a fitting, is left out) and the wire
+  type's residual thickness, as the pipeline does.
 
 Per case it prints, for the running contact wires: the residual thickness error (RMS, 95th
 percentile, max), the height and stagger errors in the track frame (RMS, max), the recall of
@@ -24,6 +26,7 @@ within 2 mm; recall 99.5 %; no false wire.
     .venv/bin/python benchmarks/accuracy.py                 # every case (a few minutes)
     .venv/bin/python benchmarks/accuracy.py --quick         # shorter sections
     .venv/bin/python benchmarks/accuracy.py --cases overlap blind-camera
+    .venv/bin/python benchmarks/accuracy.py --no-screen     # without the along-track screen
 """
 
 from __future__ import annotations
@@ -41,7 +44,11 @@ import numpy as np
 
 from catenary.domain import CameraLines, ScanBlock
 from catenary.vehicle import roof_to_track
-from catenary.wear import corrected_wear_width_mm, stagger_angle_by_wire_rad
+from catenary.wear import (
+    corrected_wear_width_mm,
+    screened_wear_width_by_wire_mm,
+    stagger_angle_by_wire_rad,
+)
 from catenary_linescan.calibrate import calibrate_from_captures, rig_from_reports
 from catenary_linescan.processor.stereo import LineScanProcessor
 from catenary_linescan.rig import Rig
@@ -200,7 +207,7 @@ _TRUTH_WIRE = (
 )
 
 
-def run_case(case: Case, rig: Rig, quick: bool) -> dict[str, Any]:
+def run_case(case: Case, rig: Rig, quick: bool, screen: bool = True) -> dict[str, Any]:
     sim = simulation(case, quick)
     processor = LineScanProcessor(rig)
     got = Collected()
@@ -229,7 +236,7 @@ def run_case(case: Case, rig: Rig, quick: bool) -> dict[str, Any]:
     processing += time.perf_counter() - t0
     contact = np.array([w.contact for w in sim.scene.wires])
     wire_type = {p.name: p for p in load_profiles()}[sim.scene.wire_type.name]
-    result = evaluate(got, contact, wire_type, rig)
+    result = evaluate(got, contact, wire_type, rig, screen)
     result.update(
         case=case.name,
         note=case.note,
@@ -249,7 +256,9 @@ def _stats(errors: np.ndarray) -> tuple[float, float, float]:
     return float(np.sqrt(np.mean(errors**2))), float(np.percentile(a, 95)), float(a.max())
 
 
-def evaluate(got: Collected, contact: np.ndarray, wire_type: Any, rig: Rig) -> dict[str, Any]:
+def evaluate(
+    got: Collected, contact: np.ndarray, wire_type: Any, rig: Rig, screen: bool = True
+) -> dict[str, Any]:
     t = {k: np.concatenate(v) for k, v in got.truth.items()}
     scan = np.concatenate(got.scan)
     wire = np.concatenate(got.wire)
@@ -286,8 +295,9 @@ def evaluate(got: Collected, contact: np.ndarray, wire_type: Any, rig: Rig) -> d
     stagger, height = roof_to_track(x, z, left, right, lateral, rig.vehicle)
     position = t["position_m"][scan]
     theta = stagger_angle_by_wire_rad(wire, position, stagger)
-    w0 = corrected_wear_width_mm(width, theta)
-    # NaN width (faces seen but not agreed on): no thickness, counted as "no width"
+    corrected = corrected_wear_width_mm(width, theta)
+    w0 = screened_wear_width_by_wire_mm(wire, position, corrected) if screen else corrected
+    # NaN width (faces seen but not agreed on, or screened out): no thickness
     thickness = wire_type.residual_thickness_mm(np.clip(w0, 0.0, wire_type.width_mm))
     use = true_row & running[scan, which]
     rows = np.flatnonzero(use)
@@ -312,6 +322,7 @@ def evaluate(got: Collected, contact: np.ndarray, wire_type: Any, rig: Rig) -> d
         "stagger": _stats(stagger_error),
         "max_wear_mm": float(np.nanmax(t["wear_width_mm"][s, j])) if rows.size else math.nan,
         "no_width": int(np.count_nonzero(~np.isfinite(width[rows]))),
+        "screened": int(np.count_nonzero(np.isfinite(corrected[rows]) & ~np.isfinite(w0[rows]))),
     }
 
 
@@ -319,7 +330,7 @@ def print_table(results: list[dict[str, Any]]) -> None:
     header = (
         f"{'case':<14} {'scans':>6} {'recall%':>8} {'false':>9} {'wire#':>6} "
         f"{'thick rms/p95/max mm':>21} {'width rms':>9} {'height rms/max':>15} "
-        f"{'stagger rms/max':>15} {'wear max':>8} {'no w':>5} {'s/case':>7}"
+        f"{'stagger rms/max':>15} {'wear max':>8} {'no w':>5} {'scr':>4} {'s/case':>7}"
     )
     print(header)
     print("-" * len(header))
@@ -331,7 +342,7 @@ def print_table(results: list[dict[str, Any]]) -> None:
             f"{r['false_wires']:>3d}w/{r['false_rows']:<4d} {numbers:>6} "
             f"{th[0]:>6.3f}/{th[1]:>6.3f}/{th[2]:>6.3f}  {wd[0]:>9.3f} "
             f"{hg[0]:>7.2f}/{hg[2]:>6.2f} {st[0]:>7.2f}/{st[2]:>6.2f} "
-            f"{r['max_wear_mm']:>8.2f} {r['no_width']:>5d} {r['seconds']:>7.1f}"
+            f"{r['max_wear_mm']:>8.2f} {r['no_width']:>5d} {r['screened']:>4d} {r['seconds']:>7.1f}"
         )
     for r in results:
         if r["duplicates"]:
@@ -339,7 +350,8 @@ def print_table(results: list[dict[str, Any]]) -> None:
     print()
     print("false: output wires that are not a contact wire (w) / rows not on a contact wire;")
     print("wire#: wire numbers each running contact wire got (1 = stable through the run);")
-    print("no w: rows of running wires whose face the cameras did not agree on (no width).")
+    print("no w: rows of running wires whose face the cameras did not agree on (no width);")
+    print("scr: rows whose width the along-track screen left out (catenary.wear, a fitting's).")
     print(
         "Targets: thickness 0.05 RMS / 0.10 max; height, stagger 2 mm; recall 99.5 %; "
         "no false wire."
@@ -350,6 +362,11 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="*", help="case names (default: all)")
     parser.add_argument("--quick", action="store_true", help="shorter sections")
+    parser.add_argument(
+        "--no-screen",
+        action="store_true",
+        help="widths as the processor gives them, without the along-track screen",
+    )
     args = parser.parse_args(argv)
     cases = [c for c in CASES if not args.cases or c.name in args.cases]
     unknown = set(args.cases or []) - {c.name for c in CASES}
@@ -361,7 +378,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"rig calibrated from simulated captures: worst reprojection RMS {worst:.3f} px")
     results = []
     for case in cases:
-        result = run_case(case, rig, args.quick)
+        result = run_case(case, rig, args.quick, not args.no_screen)
         results.append(result)
         print(
             f"  {case.name}: {result['scans']} scans in {result['seconds']:.0f} s "
