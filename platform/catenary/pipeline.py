@@ -19,9 +19,10 @@ gives :class:`TrackSamples`:
    (NaN); the row stays. Rows are held ``SCREEN_NOISE_HALF_WINDOW_M`` longer (how far the
    screen looks), so that it sees the stagger-corrected widths of both sides.
 
-Memory is bounded by ``history_m`` of scans and ``2 window_m`` of rows per wire, whatever the
-run's length. Residual thickness and chainage come later, once the run's chainage is aligned
-(they need the mast register's wire types and the whole run's registration points).
+Memory is bounded by ``history_m`` of scans and ``2 window_m`` (and the screen's reach) of
+rows per wire, whatever the run's length. Residual thickness and chainage come later, once
+the run's chainage is aligned (they need the mast register's wire types and the whole run's
+registration points).
 """
 
 from __future__ import annotations
