@@ -12,7 +12,7 @@ are 0.05 mm RMS and 0.10 mm worst for the residual thickness, 2 mm for height an
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -21,12 +21,17 @@ import pytest
 from catenary.domain import CameraLines, ScanBlock, VehicleSamples, WireObservations
 from catenary.errors import UserError
 from catenary.vehicle import roof_to_track
-from catenary.wear import corrected_wear_width_mm, stagger_angle_by_wire_rad
+from catenary.wear import (
+    corrected_wear_width_mm,
+    screened_wear_width_by_wire_mm,
+    stagger_angle_by_wire_rad,
+)
 from catenary_linescan.calibrate import calibrate_from_captures, rig_from_reports
 from catenary_linescan.processor.stereo import LineScanProcessor, ProcessorConfig, create
 from catenary_linescan.rig import Rig, write_rig
 from catenary_linescan.simulator import DEMO_RIG_PATH, Simulation, load_rig, parse_settings
 from catenary_linescan.simulator.captures import write_captures
+from catenary_linescan.simulator.scene import generate_scene
 from catenary_wiretypes import load_profiles
 
 SPEED_KMH = 160.0  # 44 mm between scans at 1000 scans/s: fewer scans to render
@@ -69,11 +74,18 @@ class Section:
 
 
 def render(
-    settings: dict, around: str = "overlap", half_length_m: float = 75.0, new_wire: bool = False
+    settings: dict,
+    around: str = "overlap",
+    half_length_m: float = 75.0,
+    new_wire: bool = False,
+    scene: dict | None = None,
 ) -> Section:
     """The scans within ``half_length_m`` of the overlap's middle mast (or the run's middle);
-    ``new_wire``: contact wires without wear."""
+    ``new_wire``: contact wires without wear; ``scene``: scene parameters that differ."""
     sim = Simulation(parse_settings({"speed_kmh": SPEED_KMH, **settings}))
+    if scene:
+        params = replace(sim.settings.scene_params(), **scene)
+        sim.scene = generate_scene(params, sim.settings.seed)
     if new_wire:
         sim.scene = sim.scene.with_constant_wear(0.0)
     chainage = sim.motion.chainage_m(sim.motion.scan_times(0, sim.scans))
@@ -139,7 +151,9 @@ class Score:
     no_width: int
 
 
-def score(section: Section, obs: WireObservations, rig: Rig) -> Score:
+def score(section: Section, obs: WireObservations, rig: Rig, screen: bool = False) -> Score:
+    """The processor's rows against the truth; ``screen``: the widths screened along the
+    track as the pipeline does (``catenary.wear``)."""
     t = section.truth
     row = obs.scan - section.first_scan
     distance = np.where(
@@ -173,6 +187,8 @@ def score(section: Section, obs: WireObservations, rig: Rig) -> Score:
     theta = stagger_angle_by_wire_rad(obs.wire, section.position_m[row], stagger)
     wire_type = {p.name: p for p in load_profiles()}[section.wire_type]
     w0 = corrected_wear_width_mm(obs.wear_width_mm, theta)
+    if screen:
+        w0 = screened_wear_width_by_wire_mm(obs.wire, section.position_m[row], w0)
     thickness = wire_type.residual_thickness_mm(np.clip(w0, 0.0, wire_type.width_mm))
     use = np.flatnonzero(true_row & running[row, which])
     r, j = row[use], which[use]
@@ -188,13 +204,13 @@ def score(section: Section, obs: WireObservations, rig: Rig) -> Score:
     )
 
 
-def assert_accurate(s: Score, recall: float = 0.99) -> None:
+def assert_accurate(s: Score, recall: float = 0.99, no_width: float = 0.002) -> None:
     assert s.false_wires == 0
     assert s.false_rows <= 2  # single points near a wire at most, never a wire
     assert s.recall >= recall
     assert all(count == 1 for count in s.numbers.values()), s.numbers  # stable numbers
     thickness = s.thickness[np.isfinite(s.thickness)]
-    assert s.no_width <= 0.002 * s.thickness.shape[0]
+    assert s.no_width <= no_width * s.thickness.shape[0]
     assert np.sqrt(np.mean(thickness**2)) < 0.03
     assert np.max(np.abs(thickness)) < 0.10
     assert np.max(np.abs(s.height)) < 2.0
@@ -254,6 +270,27 @@ def test_white_daylight_overlap_invents_no_wire(rig: Rig) -> None:
     assert s.false_rows <= 0.01 * obs.rows  # points near a wire but more than 20 mm off
     assert len(s.numbers) == 2
     assert all(count == 1 for count in s.numbers.values())
+
+
+def test_worn_to_the_limit_past_dropper_clamps(rig: Rig) -> None:
+    """Faces of 8-12 mm: at a dropper clamp the wire's dark side between its face and the clamp
+    behind it is narrower than the blur, and every camera reads the face narrow (0.13 mm of
+    thickness at the worst clamp here); the pipeline's along-track screen leaves those
+    scans' widths out, and the rest meets the targets."""
+    section = render(
+        {"seed": 21, "overlap": False, "curve_radius_m": 0.0, "length_m": 200.0},
+        around="middle",
+        half_length_m=60.0,
+        scene={"wear_base_mm": (9.5, 11.0)},
+    )
+    obs = process(rig, section, 1024)
+    raw = score(section, obs, rig)
+    assert np.nanmax(np.abs(raw.thickness)) > 0.10  # the clamp is in the section
+    screened = score(section, obs, rig, screen=True)
+    assert np.nanmax(section.truth["wear_width_mm"]) > 11.5
+    # a scan at every dropper clamp at most (44 mm between scans here, droppers every 5-10 m)
+    assert screened.no_width - raw.no_width <= 120.0 / 5.0
+    assert_accurate(screened, no_width=0.01)
 
 
 def test_create_reads_the_rig_and_the_settings(rig: Rig, tmp_path: Path) -> None:
