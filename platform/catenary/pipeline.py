@@ -58,7 +58,7 @@ class TrackSamples:
 
     ``wear_width_mm`` is across the wire (stagger-angle corrected); NaN where the cameras
     did not agree on the face, the angle could not be fitted or the screen left it out, 0.0
-    where no face was seen.
+    where no face was seen (and its neighbours saw none either).
     """
 
     scan: IntArray
@@ -103,7 +103,8 @@ _DTYPES = {
 
 
 class MeasurementChain:
-    """Vehicle compensation and stagger-angle correction of a processor's observations.
+    """Vehicle compensation, stagger-angle correction and the along-track screen of a
+    processor's observations.
 
     Parameters
     ----------
@@ -231,7 +232,9 @@ class MeasurementChain:
             self._pending[wire] = pending.take(~ready)
             given = TrackSamples.concatenate([context, done])
             last = float(np.max(done.position_m))
-            self._context[wire] = given.take(given.position_m >= last - self.window_m)
+            # as far back as the angle's window and the screen's noise differences reach
+            reach = max(self.window_m, 2.0 * SCREEN_NOISE_HALF_WINDOW_M)
+            self._context[wire] = given.take(given.position_m >= last - reach)
         released = TrackSamples.concatenate(out)
         order = np.lexsort((released.wire, released.scan))
         return released.take(order)

@@ -14,6 +14,12 @@ from catenary.domain import (
     WireObservations,
 )
 from catenary.pipeline import MeasurementChain, TrackSamples
+from catenary.wear import (
+    DEFAULT_WINDOW_M,
+    corrected_wear_width_mm,
+    screened_wear_width_mm,
+    stagger_angle_rad,
+)
 
 GEOMETRY = VehicleGeometry(
     "test", roof_height_mm=3900.0, sensor_height_mm=1100.0, sensor_baseline_mm=1800.0
@@ -90,10 +96,11 @@ def run_chain(
     lag: int,
     fault_at: slice | None = None,
     width_mm: float | np.ndarray = 8.0,
+    window_m: float = DEFAULT_WINDOW_M,
 ) -> TrackSamples:
     """Observations released ``lag`` scans late (a processor's tracking holds them back)."""
     scans = run_scans(n)
-    chain = MeasurementChain(GEOMETRY)
+    chain = MeasurementChain(GEOMETRY, window_m=window_m)
     out = []
     released = 0
     for b in blocks(scans, block, fault_at):
@@ -143,6 +150,27 @@ def test_block_size_and_release_lag_do_not_change_the_rows():
     assert np.isnan(a.wear_width_mm).any()  # the screen is at work
     np.testing.assert_allclose(a.wear_width_mm[order_a], b.wear_width_mm[order_b], atol=1e-9)
     np.testing.assert_allclose(a.stagger_mm[order_a], b.stagger_mm[order_b], atol=1e-9)
+
+
+@pytest.mark.parametrize("window_m", [DEFAULT_WINDOW_M, 0.2])
+def test_the_chain_screens_as_the_whole_run_at_once(window_m: float):
+    n = 3000
+    width = 8.0 + np.random.default_rng(4).normal(0.0, 0.012, n)
+    for first in (99, 510, 1023, 1500, 2047):  # clamps across blocks' and releases' ends
+        width[first : first + 3] -= 0.1
+    runs = [
+        run_chain(n, block=block, lag=lag, width_mm=width, window_m=window_m)
+        for block, lag in ((100, 0), (512, 37), (1024, 600))
+    ]
+    rows = runs[0]
+    theta = stagger_angle_rad(rows.position_m, rows.stagger_mm, window_m)
+    expected = screened_wear_width_mm(
+        rows.position_m, corrected_wear_width_mm(width[rows.scan], theta)
+    )
+    assert np.count_nonzero(np.isnan(expected)) >= 15
+    for got in runs:
+        order = np.argsort(got.scan)
+        np.testing.assert_allclose(got.wear_width_mm[order], expected[np.argsort(rows.scan)])
 
 
 def test_a_sensor_fault_flags_its_scans():

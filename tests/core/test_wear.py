@@ -216,6 +216,10 @@ def test_the_screen_takes_any_order_keeps_nan_and_needs_a_few_samples() -> None:
         screened_wear_width_mm(position[order], width[order]), expected[order]
     )
     assert np.array_equal(np.isnan(expected), np.isnan(width) | (np.arange(width.shape[0]) == 100))
+    # scans further apart than a window can hold five of (over 50 mm): nothing to compare
+    sparse = np.full(200, 9.0)
+    sparse[100] = 9.5
+    np.testing.assert_array_equal(screened_wear_width_mm(np.arange(200) * 0.07, sparse), sparse)
     few = np.array([9.0, 9.0, 9.5, 9.0])
     np.testing.assert_array_equal(screened_wear_width_mm([0.0, 0.01, 0.02, 0.03], few), few)
     # at a standstill every scan is at one place: the window holds its nearest samples
