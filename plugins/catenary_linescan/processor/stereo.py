@@ -30,7 +30,8 @@ Tracking holds back the points of the last metres until they are decided:
 ``floor_px``               narrowest confirmation window (0.6)
 ``wire_width_mm``          [min, max] contact wire widths the features look for ([10.6, 14.8]);
                            half their mean is the radius of a wire whose face no two cameras
-                           saw (a new wire): set both to the line's wire width where it has one
+                           saw (a new wire: its silhouettes' middle is lowered to its bottom by
+                           it): set both to the line's wire width where it has one
 ``min_track_m``            shortest track taken for a wire (``tracking.MIN_TRACK_M``)
 ``max_gap_m``              longest gap a track bridges (1.0)
 ``messenger_gap_mm``       height above the lowest contact wire of a messenger (300)
@@ -44,7 +45,8 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping
+import warnings
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -54,10 +56,14 @@ import numpy as np
 from catenary.domain import ScanBlock, WireObservations
 from catenary.errors import UserError
 from catenary.vehicle import roll_rad
+from catenary_linescan.calibration import ResolutionTable
+from catenary_linescan.camera import LineScanCamera
 from catenary_linescan.rig import Rig, read_rig
 
 from .features import FeatureConfig, extract_features
 from .matching import (
+    Candidates,
+    FloatArray,
     MatchConfig,
     Matches,
     camera_sigmas_px,
@@ -250,7 +256,8 @@ class LineScanProcessor:
         roll = np.where(np.isfinite(roll), roll, 0.0)
         if roll.shape != (n,):
             roll = np.zeros(n)
-        matches = contact_from_axis(matches, roll, self.config.wire_radius_mm)
+        chord = lit_chord_mm(self.cameras, self.tables, candidates, matches, roll)
+        matches = contact_from_axis(matches, roll, self.config.wire_radius_mm, chord)
         widths = face_widths_mm(
             self.cameras,
             self.tables,
@@ -302,17 +309,55 @@ class LineScanProcessor:
             self._warned[c] = True
 
 
-def contact_from_axis(matches: Matches, roll_rad: np.ndarray, radius_mm: float) -> Matches:
-    """The contact point of the matches located by their axis (no face: ``from_face``
-    false): a round wire's lowest point, ``radius_mm`` below the axis along the track frame's
-    vertical, which the body's roll ``roll_rad`` (per scan of the block, shape (n,), positive:
-    left side up) tilts to ``(-sin φ, cos φ)`` in the roof frame."""
-    axis = ~matches.from_face
+def lit_chord_mm(
+    cameras: Sequence[LineScanCamera],
+    tables: Sequence[ResolutionTable],
+    candidates: Candidates,
+    matches: Matches,
+    roll_rad: np.ndarray,
+) -> FloatArray:
+    """Width ``(m,)`` [mm] of each match's lit silhouette where it is brighter than the sky
+    (a wire lit from below at night), on the plane of the face through the point (as the
+    face's width): the median of the cameras that saw the match bright; NaN where none did.
+
+    A round wire lit from below shows its bottom: the lit part's ends are two points of its
+    circle at one height, and the middles of its silhouettes triangulate to the middle of
+    that chord, not to the axis."""
+    bright = candidates.polarity > 0
+    lit = replace(
+        candidates,
+        face_left_px=np.where(bright, candidates.left_px, np.nan),
+        face_right_px=np.where(bright, candidates.right_px, np.nan),
+    )
+    widths = face_widths_mm(
+        cameras, tables, lit, matches, roll_rad, tolerance_mm=np.inf, max_width_mm=np.inf
+    )
+    per_camera = widths.per_camera_mm
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # no bright camera: NaN
+        return np.nanmedian(per_camera, axis=1) if per_camera.size else np.zeros(matches.count)
+
+
+def contact_from_axis(
+    matches: Matches, roll_rad: np.ndarray, radius_mm: float, chord_mm: FloatArray
+) -> Matches:
+    """The contact point of the matches located by their silhouettes (no face:
+    ``from_face`` false): a round wire's lowest point.
+
+    The middles of the silhouettes triangulate to the middle of the chord between the
+    silhouette's ends. When the whole wire shows (or ``chord_mm`` is NaN) that is the axis,
+    ``radius_mm`` above the lowest point; when only its lit bottom shows, a chord of
+    ``chord_mm`` lies ``r - sqrt(r² - (chord/2)²)`` above it. The point is lowered by that
+    along the track frame's vertical, which the body's roll ``roll_rad`` (per scan of the
+    block, shape (n,), positive: left side up) tilts to ``(-sin φ, cos φ)`` in the roof
+    frame."""
+    half = np.minimum(0.5 * np.nan_to_num(chord_mm, nan=2.0 * radius_mm), radius_mm)
+    drop = np.where(matches.from_face, 0.0, radius_mm - np.sqrt(radius_mm**2 - half**2))
     phi = roll_rad[matches.scan]
     return replace(
         matches,
-        x_mm=np.where(axis, matches.x_mm + radius_mm * np.sin(phi), matches.x_mm),
-        z_mm=np.where(axis, matches.z_mm - radius_mm * np.cos(phi), matches.z_mm),
+        x_mm=matches.x_mm + drop * np.sin(phi),
+        z_mm=matches.z_mm - drop * np.cos(phi),
     )
 
 
