@@ -73,6 +73,7 @@ __all__ = [
     "camera_sigmas_px",
     "covering_pairs",
     "face_widths_mm",
+    "lit_chord_mm",
     "match",
     "pad_candidates",
 ]
@@ -1471,6 +1472,50 @@ def face_widths_mm(
         spread_mm=spread,
         cameras=agreeing.astype(np.int64),
     )
+
+
+def lit_chord_mm(
+    cameras: Sequence[LineScanCamera],
+    candidates: Candidates,
+    matches: Matches,
+    roll_rad: FloatArray | None = None,
+) -> FloatArray:
+    """Width of the lit silhouette of each match located by its silhouettes (``from_face``
+    false): the silhouette's width in every camera that saw it brighter than the sky
+    (polarity +1: a wire lit from below at night) over the camera model's resolution along
+    the face's plane at the point (``(cos φ, sin φ)`` with the body's roll), median of those
+    cameras.
+
+    A round wire lit from below shows its bottom: the lit part's ends are two points of its
+    circle at one height, and the middles of its silhouettes triangulate to the middle of
+    that chord, not to the axis (:func:`.stereo.contact_from_axis`).
+
+    Returns
+    -------
+    ndarray, shape (m,)
+        The chord [mm]; NaN where no camera saw the match bright, or it has a face.
+    """
+    chord = np.full(matches.count, np.nan)
+    rows = np.flatnonzero(~matches.from_face)
+    if rows.shape[0] == 0:
+        return chord
+    bright = candidates.polarity > 0
+    left, right = _gather(
+        matches.scan[rows],
+        matches.slot[rows],
+        np.where(bright, candidates.left_px, np.nan),
+        np.where(bright, candidates.right_px, np.nan),
+    )
+    phi = np.zeros(rows.shape[0]) if roll_rad is None else roll_rad[matches.scan[rows]]
+    x, z = matches.x_mm[rows], matches.z_mm[rows]
+    per_camera = np.full(left.shape, np.nan)
+    for c, camera in enumerate(cameras):  # a loop per camera, not per point
+        _, du_dx, du_dz = _Geometry.of(camera).project(x, z)
+        along = np.abs(du_dx * np.cos(phi) + du_dz * np.sin(phi))  # px per mm
+        with np.errstate(invalid="ignore", divide="ignore"):
+            per_camera[:, c] = (right[:, c] - left[:, c]) / along
+    chord[rows] = _row_median(per_camera)
+    return chord
 
 
 def _row_median(values: FloatArray) -> FloatArray:

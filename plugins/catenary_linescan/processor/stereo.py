@@ -45,8 +45,7 @@ from __future__ import annotations
 
 import logging
 import math
-import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -56,18 +55,16 @@ import numpy as np
 from catenary.domain import ScanBlock, WireObservations
 from catenary.errors import UserError
 from catenary.vehicle import roll_rad
-from catenary_linescan.calibration import ResolutionTable
-from catenary_linescan.camera import LineScanCamera
 from catenary_linescan.rig import Rig, read_rig
 
 from .features import FeatureConfig, extract_features
 from .matching import (
-    Candidates,
     FloatArray,
     MatchConfig,
     Matches,
     camera_sigmas_px,
     face_widths_mm,
+    lit_chord_mm,
     match,
     pad_candidates,
 )
@@ -256,7 +253,7 @@ class LineScanProcessor:
         roll = np.where(np.isfinite(roll), roll, 0.0)
         if roll.shape != (n,):
             roll = np.zeros(n)
-        chord = lit_chord_mm(self.cameras, self.tables, candidates, matches, roll)
+        chord = lit_chord_mm(self.cameras, candidates, matches, roll)
         matches = contact_from_axis(matches, roll, self.config.wire_radius_mm, chord)
         widths = face_widths_mm(
             self.cameras,
@@ -307,35 +304,6 @@ class LineScanProcessor:
                 100.0 * self.config.table_tolerance,
             )
             self._warned[c] = True
-
-
-def lit_chord_mm(
-    cameras: Sequence[LineScanCamera],
-    tables: Sequence[ResolutionTable],
-    candidates: Candidates,
-    matches: Matches,
-    roll_rad: np.ndarray,
-) -> FloatArray:
-    """Width ``(m,)`` [mm] of each match's lit silhouette where it is brighter than the sky
-    (a wire lit from below at night), on the plane of the face through the point (as the
-    face's width): the median of the cameras that saw the match bright; NaN where none did.
-
-    A round wire lit from below shows its bottom: the lit part's ends are two points of its
-    circle at one height, and the middles of its silhouettes triangulate to the middle of
-    that chord, not to the axis."""
-    bright = candidates.polarity > 0
-    lit = replace(
-        candidates,
-        face_left_px=np.where(bright, candidates.left_px, np.nan),
-        face_right_px=np.where(bright, candidates.right_px, np.nan),
-    )
-    widths = face_widths_mm(
-        cameras, tables, lit, matches, roll_rad, tolerance_mm=np.inf, max_width_mm=np.inf
-    )
-    per_camera = widths.per_camera_mm
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # no bright camera: NaN
-        return np.nanmedian(per_camera, axis=1) if per_camera.size else np.zeros(matches.count)
 
 
 def contact_from_axis(
