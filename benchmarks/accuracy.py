@@ -10,10 +10,10 @@ own seeds) and compares it with the ground truth, per case:
   camera models;
 - the processor (features, matching, tracking) turns the run's blocks into wire observations
   in the roof frame; the core then applies the vehicle compensation (``roof_to_track`` with
-  the noisy displacement sensors), the stagger-angle correction (``catenary.wear``: θ from the
-  measured stagger gradient), the along-track screen of the widths (``catenary.wear``: a width
-  that departs from its neighbours for a few scans, at a fitting, is left out) and the wire
-  type's residual thickness, as the pipeline does.
+  the noisy displacement sensors), the stagger-angle correction (``catenary.measurement.wear``: θ
+  from the measured stagger gradient), the along-track screen of the widths
+  (``catenary.measurement.wear``: a width that departs from its neighbours for a few scans, at a
+  fitting, is left out) and the wire type's residual thickness, as the pipeline does.
 
 Per case it prints, for the running contact wires: the residual thickness error (RMS, 95th
 percentile, max), the height and stagger errors in the track frame (RMS, max), the recall of
@@ -43,8 +43,8 @@ from typing import Any
 import numpy as np
 
 from catenary.domain import CameraLines, ScanBlock
-from catenary.vehicle import roof_to_track
-from catenary.wear import (
+from catenary.measurement.vehicle import roof_to_track
+from catenary.measurement.wear import (
     corrected_wear_width_mm,
     screened_wear_width_by_wire_mm,
     stagger_angle_by_wire_rad,
@@ -351,7 +351,10 @@ def print_table(results: list[dict[str, Any]]) -> None:
     print("false: output wires that are not a contact wire (w) / rows not on a contact wire;")
     print("wire#: wire numbers each running contact wire got (1 = stable through the run);")
     print("no w: rows of running wires whose face the cameras did not agree on (no width);")
-    print("scr: rows whose width the along-track screen left out (catenary.wear, a fitting's).")
+    print(
+        "scr: rows whose width the along-track screen left out "
+        "(catenary.measurement.wear, a fitting's)."
+    )
     print(
         "Targets: thickness 0.05 RMS / 0.10 max; height, stagger 2 mm; recall 99.5 %; "
         "no false wire."

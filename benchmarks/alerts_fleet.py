@@ -8,8 +8,8 @@ section whose last span is an overlap (two contact wires). Each span and wire we
 rate (log-normal around 0.12 mm/year, 2 % hot spots at 0.5-1.0 mm/year) from its own new
 thickness, with 0.03 mm of noise on the span minimum.
 
-Then it times the full evaluation (``catenary.alerts.evaluate_alerts`` over every span, policy
-``china-maintenance-rules``: the anchor-section average rule and two local rules, with
+Then it times the full evaluation (``catenary.maintenance.alerts.evaluate_alerts`` over every span,
+policy ``china-maintenance-rules``: the anchor-section average rule and two local rules, with
 forecasts over a 365-day horizon), once on the fresh database (raising every alert) and once
 again (nothing new: every alert found and left as it is), and the evaluation of one run.
 
@@ -31,7 +31,7 @@ import numpy as np
 from sqlalchemy import create_engine, func, insert, select
 from sqlalchemy.engine import Connection, make_url
 
-from catenary.alerts import evaluate_alerts
+from catenary.maintenance.alerts import evaluate_alerts
 from catenary.plugins import PluginRegistry
 from catenary.storage import migrate
 from catenary.storage.database import make_engine, session_scope

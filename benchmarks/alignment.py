@@ -4,9 +4,10 @@ Per case, the whole measurement chain runs on a simulated run with a known encod
 error and start-chainage error (``encoder_scale_error``, ``start_chainage_error_m``): the rig
 calibrated from simulated captures (``accuracy.calibrated_rig``), the line-scan processor
 over the run's chunks, the track frame from the noisy displacement sensors
-(``catenary.vehicle.roof_to_track``), the registration points found in the stagger as the
-processor releases its rows (``catenary.chainage.TurningPointFinder``), and their match to the
-scene's mast register (``catenary.chainage.align_to_register``). Against the truth's chainage
+(``catenary.measurement.vehicle.roof_to_track``), the registration points found in the stagger as
+the processor releases its rows (``catenary.measurement.chainage.TurningPointFinder``), and their
+match to the scene's mast register (``catenary.measurement.chainage.align_to_register``). Against
+the truth's chainage
 of every scan it prints:
 
 - the aligned chainage's error (RMS and max over every scan), and for contrast the header's
@@ -38,9 +39,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from accuracy import calibrated_rig
 
-from catenary.chainage import TurningPointFinder, align_to_register
 from catenary.domain import CameraLines, ScanBlock
-from catenary.vehicle import roof_to_track
+from catenary.measurement.chainage import TurningPointFinder, align_to_register
+from catenary.measurement.vehicle import roof_to_track
 from catenary_linescan.processor.stereo import LineScanProcessor
 from catenary_linescan.rig import Rig
 from catenary_linescan.simulator import Simulation, parse_settings

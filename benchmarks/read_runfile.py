@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from catenary.runfile import DEFAULT_COMPRESSION, RunFileWriter, open_run
+from catenary.measurement.runfile import DEFAULT_COMPRESSION, RunFileWriter, open_run
 
 CAMERAS = ("left", "centre_left", "centre_right", "right")
 PIXELS = 4096

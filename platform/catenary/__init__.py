@@ -1,5 +1,7 @@
-"""catenary: contact wire wear platform."""
+"""catenary: contact wire wear platform.
 
-from catenary.hookspecs import hookimpl
-
-__all__ = ["hookimpl"]
+The packages by concern: ``plugins`` (the plugin API), ``measurement`` (run file to per-span
+wear), ``maintenance`` (alerts, forecasts, notifications, reports, scheduler), ``storage``
+(database and runs) and ``cli`` (the commands); ``domain``, ``wiretype``, ``limits``,
+``config`` and ``errors`` are shared by all of them.
+"""

@@ -14,6 +14,9 @@ from numpy.typing import NDArray
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
+DEFAULT_BLOCK_SCANS = 1024
+"""Scans per block when a source or reader is not told otherwise."""
+
 
 @dataclass(frozen=True)
 class VehicleGeometry:
@@ -111,3 +114,24 @@ class WireObservations:
     @property
     def rows(self) -> int:
         return int(self.scan.shape[0])
+
+
+@dataclass(frozen=True)
+class TrackRegister:
+    """The masts of one line and track, sorted by chainage (each ``(k,)``)."""
+
+    line: str
+    track: str
+    mast: tuple[str, ...]
+    chainage_m: FloatArray
+    wire_type: tuple[str, ...]
+    design_stagger_mm: FloatArray  # NaN where not given
+    anchor_section: tuple[str | None, ...] | None = None  # None: the register has no such column
+
+    @property
+    def masts(self) -> int:
+        return len(self.mast)
+
+    def span_name(self, span: int) -> tuple[str, str]:
+        """The masts at the start and end of span ``span`` (from mast ``span`` to the next)."""
+        return self.mast[span], self.mast[span + 1]

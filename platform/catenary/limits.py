@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from catenary.config import Settings
 from catenary.errors import UserError
 from catenary.wiretype import ProfileRangeError, WireType
 
@@ -315,6 +316,35 @@ def policy_from_config(
     return select_policy(policies, name, origin=origin)
 
 
+def choose_policy(
+    settings: Settings,
+    presets: Mapping[str, LimitPolicy],
+    name: str | None = None,
+    policy_file: Path | None = None,
+) -> LimitPolicy | None:
+    """The policy a command is told to use, or None without one.
+
+    ``name`` (``--policy``) picks one of ``policy_file``'s policies (``--policy-file``; a file
+    of a single policy needs no name), else of the ``presets``; with neither, the config's
+    ``[limits]`` section (``policy_from_config``) decides.
+    """
+    if policy_file is not None:
+        policies = load_policies(policy_file)
+        if name is None:
+            if len(policies) != 1:
+                known = ", ".join(sorted(policies))
+                raise UserError(
+                    f"{policy_file}: holds several policies, choose one with --policy ({known})"
+                )
+            (name,) = policies
+        return select_policy(policies, name, origin=str(policy_file))
+    if name is not None:
+        return select_policy(presets, name, origin="wear-limit presets")
+    return policy_from_config(
+        settings.sections.get("limits"), presets=presets, config_path=settings.config_path
+    )
+
+
 def thresholds(wire: WireType, policy: LimitPolicy) -> list[Threshold]:
     """Every rule of ``policy`` that applies to ``wire``, in rule order, in three measures.
 
@@ -361,6 +391,7 @@ __all__ = [
     "LimitPolicy",
     "LimitRule",
     "Threshold",
+    "choose_policy",
     "load_policies",
     "parse_policies",
     "policy_from_config",

@@ -22,8 +22,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from catenary import hookimpl
-from catenary.registrations import VehicleSource, VehicleStream
+from catenary.plugins import hookimpl
+from catenary.plugins.types import VehicleSource, VehicleStream
 
 
 def open_can_source(settings: Mapping[str, Any]) -> VehicleStream:

@@ -7,8 +7,8 @@ hooks so that the registry reports a failure here by name.
 
 from __future__ import annotations
 
-from catenary import hookimpl
-from catenary.registrations import Command, Processor, Source
+from catenary.plugins import hookimpl
+from catenary.plugins.types import Command, Processor, Source
 
 
 @hookimpl

@@ -29,7 +29,7 @@ import numpy as np
 
 from catenary.domain import VehicleGeometry
 from catenary.errors import UserError
-from catenary.vehicle import load_vehicle_geometry
+from catenary.measurement.vehicle import load_vehicle_geometry
 from catenary_linescan.calibration import (
     CameraCalibration,
     ResolutionTable,

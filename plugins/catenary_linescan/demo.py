@@ -16,14 +16,8 @@ from pathlib import Path
 
 import click
 
-from catenary.alerts import configured_policy
-from catenary.cli import app_of
 from catenary.limits import thresholds
-from catenary.process import ProcessRequest, process_run
-from catenary.report_command import report_request
-from catenary.run_commands import echo_summary, export
-from catenary.storage import migrate
-from catenary.storage.database import mask_url, open_database
+from catenary.plugins import CommandContext, pass_command_context
 from catenary_linescan.calibrate import calibrate
 from catenary_linescan.simulator.command import simulate
 from catenary_linescan.simulator.settings import DEMO_RIG_PATH
@@ -42,14 +36,24 @@ DEMO_POLICY = "manufacturer-30pct"
 )
 @click.option("--length-m", type=float, default=300.0, show_default=True, help="Run length.")
 @click.option("--seed", type=int, default=7, show_default=True, help="Scene, motion and noise.")
+@pass_command_context
 @click.pass_context
-def demo(ctx: click.Context, out: Path, length_m: float, seed: int) -> None:
+def demo(
+    ctx: click.Context, context: CommandContext, out: Path, length_m: float, seed: int
+) -> None:
     """Simulate a run on the demo rig, calibrate the rig, process the run, write its reports."""
+    from catenary.limits import choose_policy
+    from catenary.maintenance.alerts import evaluate_stored_run, run_alerting, run_alerts_lines
+    from catenary.maintenance.reports import report_request
+    from catenary.measurement.export import export_run
+    from catenary.measurement.process import ProcessRequest, process_run
+    from catenary.storage import migrate
+    from catenary.storage.database import mask_url
+
     started = time.monotonic()
-    app = app_of(ctx)
-    settings = app.settings
-    presets = app.registry.limit_policies()
-    configured = configured_policy(settings, presets)
+    settings, registry = context.settings, context.registry
+    presets = registry.limit_policies()
+    configured = choose_policy(settings, presets)
     policy = configured or presets[DEMO_POLICY]
     out.mkdir(parents=True, exist_ok=True)
     run, captures, rig_path = out / "run.h5", out / "captures.h5", out / "rig.toml"
@@ -85,21 +89,25 @@ def demo(ctx: click.Context, out: Path, length_m: float, seed: int) -> None:
     )
 
     click.echo("3/4 processing the run into the database")
-    with open_database(settings.database_url, migrated=False) as engine:
+    with context.database(migrated=False) as engine:
         migrate.upgrade(engine)
     masts = run.with_suffix(".masts.csv")
-    request = ProcessRequest(run_path=run, rig_path=rig_path, register_path=masts, policy=policy)
-    result = process_run(request, settings, app.registry)
-    echo_summary(result)
+    alerting = run_alerting(settings, registry, policy)
+    request = ProcessRequest(run_path=run, rig_path=rig_path, register_path=masts)
+    result = process_run(request, settings, registry)
+    with context.database() as engine:
+        alerts = evaluate_stored_run(alerting, engine, settings, registry, result.run_id)
+    for text in [*result.summary_lines(), *run_alerts_lines(alerts)]:
+        click.echo(text)
+    click.echo(f"stored as run {result.run_id}")
 
     click.echo("4/4 writing the reports")
     spans = out / "spans.csv"
-    ctx.invoke(
-        export, run_reference=str(result.run_id), what="spans", output=spans, database_url=None
-    )
+    written, _ = export_run(settings, str(result.run_id), "spans", spans)
+    click.echo(f"{written} spans of run {result.run_id} written to {spans}")
     preset = None if configured else DEMO_POLICY  # None: the config's own
-    request = report_request(settings, app.registry, runs=(str(result.run_id),), policy=preset)
-    report = app.registry.reporters()["run"].write(request, out / "report.html")
+    request = report_request(settings, registry, runs=(str(result.run_id),), policy=preset)
+    report = registry.reporters()["run"].write(request, out / "report.html")
     click.echo("")
     click.echo(f"run file          {run} (truth: {run.with_suffix('.truth.h5').name})")
     click.echo(f"mast register     {masts}")
@@ -109,11 +117,11 @@ def demo(ctx: click.Context, out: Path, length_m: float, seed: int) -> None:
     click.echo(f"samples           {result.samples_path}")
     click.echo(f"report            {report} (the run report: open it in a browser)")
     click.echo(f"spans             {spans} (one row per span and wire)")
-    raised = len(result.alerts.new) if result.alerts else 0
+    raised = len(alerts.new) if alerts else 0
     why = " (catenary alerts list)"
     minimum = result.minimum
     if raised == 0 and minimum is not None:
-        wire = app.registry.wire_types()[minimum.wire_type]
+        wire = registry.wire_types()[minimum.wire_type]
         limits = [t.residual_thickness_mm for t in thresholds(wire, policy) if t.scope == "local"]
         limit = f", the first limit {max(limits):.2f} mm" if limits else ""
         why = f": the thinnest wire has {minimum.min_residual_thickness_mm:.2f} mm left{limit}"

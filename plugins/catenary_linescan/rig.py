@@ -45,7 +45,7 @@ import tomli_w
 
 from catenary.domain import VehicleGeometry
 from catenary.errors import FormatError, UserError
-from catenary.vehicle import parse_vehicle_geometry
+from catenary.measurement.vehicle import parse_vehicle_geometry
 from catenary_linescan.calibration import ResolutionTable, resolution_table_from_camera
 from catenary_linescan.camera import LineScanCamera
 

@@ -1,16 +1,17 @@
 """Built-in alert notifiers: ``email`` (SMTP) and ``webhook`` (a JSON POST).
 
-The core's delivery (``catenary.notify``) calls ``send(alert, settings)`` with an alert's fields
-(``catenary.notify.alert_fields``) and a channel's settings (``[notifications.channels.settings]``);
-``send`` returns once the alert is handed over and raises otherwise, so the core records the
-failure and retries later. Secrets never live in the config file: settings name the environment
-variables that hold them.
+The core's delivery (``catenary.maintenance.notifications``) calls ``send(alert, settings)``
+with an alert's fields (``catenary.maintenance.notifications.alert_fields``) and a channel's
+settings
+(``[notifications.channels.settings]``); ``send`` returns once the alert is handed over and raises
+otherwise, so the core records the failure and retries later. Secrets never live in the config file:
+settings name the environment variables that hold them.
 """
 
 from __future__ import annotations
 
-from catenary import hookimpl
-from catenary.registrations import Notifier
+from catenary.plugins import hookimpl
+from catenary.plugins.types import Notifier
 from catenary_notify import smtp, webhook
 
 

@@ -1,7 +1,7 @@
 """Recorded run files (HDF5, FORMATS.md) as an acquisition source.
 
 Settings: ``path`` (the run file). The file is checked on open and streamed in blocks with the
-vehicle sensors interpolated to the scan times (``catenary.runfile``).
+vehicle sensors interpolated to the scan times (``catenary.measurement.runfile``).
 """
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from catenary import hookimpl
 from catenary.errors import UserError
-from catenary.registrations import Source
-from catenary.runfile import RunFile, open_run
+from catenary.measurement.runfile import RunFile, open_run
+from catenary.plugins import hookimpl
+from catenary.plugins.types import Source
 
 
 def open_recorded(settings: Mapping[str, Any]) -> RunFile:

@@ -15,8 +15,8 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from catenary import hookimpl
-from catenary.registrations import Reporter
+from catenary.plugins import hookimpl
+from catenary.plugins.types import Reporter
 
 __all__ = ["catenary_reporters"]
 

@@ -30,7 +30,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from catenary.errors import UserError
-from catenary.samples import export_table
+from catenary.measurement.samples import export_table
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Line, Run, SpanMeasurement, Track
 from catenary.storage.runs import find_run

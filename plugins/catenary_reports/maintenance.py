@@ -42,7 +42,7 @@ from sqlalchemy.orm import Session, selectinload
 
 from catenary.errors import UserError
 from catenary.limits import LEVELS
-from catenary.samples import export_table
+from catenary.measurement.samples import export_table
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import (
     Alert,

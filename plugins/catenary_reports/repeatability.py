@@ -1,7 +1,7 @@
 """The repeatability report: two runs over the same section (the paper's figure 16).
 
-``catenary.compare.compare_profiles`` pairs the runs' wires, finds their chainage shift and
-takes B's residual thickness minus A's at every sample of A. ``.html``: both runs' facts, the
+``catenary.measurement.compare.compare_profiles`` pairs the runs' wires, finds their chainage shift
+and takes B's residual thickness minus A's at every sample of A. ``.html``: both runs' facts, the
 comparison's figures (points, share within the tolerance, RMS, p95, max, shift), (a) both
 runs' residual thickness along the chainage with the difference below it and (b) the
 histogram of the differences; ``.csv``/``.parquet``: the histogram over every difference
@@ -18,10 +18,9 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from catenary.compare import Comparison, compare_profiles
 from catenary.errors import UserError
-from catenary.run_samples import run_profile
-from catenary.samples import export_table
+from catenary.measurement.compare import Comparison, compare_profiles
+from catenary.measurement.samples import export_table, run_profile
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Run
 from catenary.storage.runs import find_run

@@ -1,4 +1,4 @@
-"""A reporter's request (``catenary.report_command``), checked against what the reporter takes."""
+"""A reporter's request (``catenary.cli.report``), checked against what the reporter takes."""
 
 from __future__ import annotations
 

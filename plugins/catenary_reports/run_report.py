@@ -26,10 +26,9 @@ import numpy as np
 import pyarrow as pa
 
 from catenary.limits import LEVELS, LimitPolicy, Threshold, thresholds
+from catenary.measurement.samples import export_table, read_sample_batches, samples_file
+from catenary.measurement.spans import SPAN_COLUMNS, SPAN_SCHEMA
 from catenary.plugins import PluginRegistry
-from catenary.run_commands import SPAN_COLUMNS
-from catenary.run_samples import samples_file
-from catenary.samples import export_table, read_sample_batches
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Run, SpanMeasurement
 from catenary.storage.runs import find_run
@@ -390,21 +389,11 @@ def _span_section(spans: Sequence[SpanMeasurement], limits: _Limits) -> str:
 
 _TABLE_SCHEMA = pa.schema(
     [
-        (
-            c,
-            pa.string()
-            if c in ("mast_from", "mast_to", "wire_type")
-            else pa.int64()
-            if c in ("span", "wire", "samples")
-            else pa.float64(),
-        )
-        for c in SPAN_COLUMNS
-    ]
-    + [
-        ("limit_policy", pa.string()),
-        ("limit_level", pa.string()),
-        ("limit_residual_thickness_mm", pa.float64()),
-        ("limit_action", pa.string()),
+        *SPAN_SCHEMA,
+        pa.field("limit_policy", pa.string()),
+        pa.field("limit_level", pa.string()),
+        pa.field("limit_residual_thickness_mm", pa.float64()),
+        pa.field("limit_action", pa.string()),
     ]
 )
 

@@ -13,8 +13,8 @@ from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
-from catenary import hookimpl
 from catenary.limits import LimitPolicy, load_policies
+from catenary.plugins import hookimpl
 from catenary.wiretype import WireType
 
 PROFILES_RESOURCE = "profiles.toml"

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from catenary.chainage import (
+from catenary.measurement.chainage import (
     IDLE_RELEASE_M,
     ChainageAlignment,
     TurningPointFinder,

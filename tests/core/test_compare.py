@@ -8,8 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from catenary.compare import Comparison, RunProfile, compare_profiles
 from catenary.errors import UserError
+from catenary.measurement.compare import Comparison, RunProfile, compare_profiles
 
 START_M = 12000.0
 LENGTH_M = 300.0

@@ -13,8 +13,8 @@ from catenary.domain import (
     VehicleSamples,
     WireObservations,
 )
-from catenary.pipeline import MeasurementChain, TrackSamples
-from catenary.wear import (
+from catenary.measurement.chain import MeasurementChain, TrackSamples
+from catenary.measurement.wear import (
     DEFAULT_WINDOW_M,
     corrected_wear_width_mm,
     screened_wear_width_mm,
@@ -68,7 +68,7 @@ def observations(scan: np.ndarray, scans: dict[str, np.ndarray], width_mm: float
     stagger = -200.0 + SLOPE_MM_PER_M * position
     height = np.full(scan.shape, 5300.0)
     # the roof-frame point that maps onto that track-frame point with this scan's sensors
-    from catenary.vehicle import track_to_roof
+    from catenary.measurement.vehicle import track_to_roof
 
     x, z = track_to_roof(
         stagger,

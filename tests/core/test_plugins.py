@@ -9,9 +9,8 @@ from typing import Any
 import pytest
 from click.testing import CliRunner
 
-from catenary import hookimpl
 from catenary.cli import cli
-from catenary.plugins import PluginError, PluginRegistry
+from catenary.plugins import PluginError, PluginRegistry, hookimpl
 from catenary.wiretype import WireType
 
 
@@ -221,7 +220,8 @@ def test_every_hook_is_documented_and_has_a_registry_caller() -> None:
     """As datasette does: a hook without documentation, or that nothing calls, fails."""
     import inspect
 
-    from catenary import hookspecs, plugins
+    from catenary.plugins import hookspecs
+    from catenary.plugins import manager as plugins
 
     hooks = [
         name

@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 from click.testing import CliRunner, Result
 
-from catenary import hookimpl
 from catenary.cli import cli
 from catenary.domain import CameraLines, RunHeader, ScanBlock, VehicleSamples
 from catenary.errors import UserError
-from catenary.plugins import PluginRegistry
-from catenary.record import parse_options, record_run
-from catenary.registrations import Source, VehicleSource
-from catenary.runfile import RunFileWarning, open_run
+from catenary.cli.record import parse_options
+from catenary.measurement.recording import record_run
+from catenary.measurement.runfile import RunFileWarning, open_run
+from catenary.plugins import PluginRegistry, hookimpl
+from catenary.plugins.types import Source, VehicleSource
 from catenary_can.decode import DEFAULT_METRES_PER_PULSE
 from catenary_can.reader import load_database, open_log
 from catenary_linescan.simulator.settings import DEMO_RIG_PATH
@@ -132,7 +132,7 @@ def fake_plugin(monkeypatch: pytest.MonkeyPatch) -> None:
     def registry(**kwargs: Any) -> PluginRegistry:
         return PluginRegistry(plugins=[("fake", FakePlugin())], **kwargs)
 
-    monkeypatch.setattr("catenary.cli.PluginRegistry", registry)
+    monkeypatch.setattr("catenary.plugins.manager.PluginRegistry", registry)
 
 
 def record(*args: str) -> Result:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from catenary.errors import FormatError, UserError
-from catenary.register import read_register
+from catenary.measurement.masts import read_register
 
 WIRES = {"CTA120", "AC-100"}
 

@@ -14,10 +14,10 @@ import h5py
 import numpy as np
 import pytest
 
-from catenary import runfile
+from catenary.measurement import runfile
 from catenary.domain import ScanBlock
 from catenary.errors import FormatError, UserError
-from catenary.runfile import (
+from catenary.measurement.runfile import (
     RunFile,
     RunFileReader,
     RunFileWarning,
@@ -907,7 +907,7 @@ def test_one_flagged_sample_faults_the_scans_that_depend_on_it(
 ) -> None:
     # A recorder writes a flagged reading as NaN: even alone (a 2 ms interval, under the gap
     # factor) every scan between its valid neighbours must be flagged, across chunk bounds.
-    monkeypatch.setattr("catenary.runfile.SERIES_CHUNK", series_chunk)
+    monkeypatch.setattr("catenary.measurement.runfile.SERIES_CHUNK", series_chunk)
     with RunFileWriter(run_path, scan_rate_hz=2000.0, cameras={"a": (2, 8)}) as w:
         t_scan = np.arange(60) / 2000.0
         w.append(t_scan, t_scan, {"a": np.zeros((60, 2), np.uint8)})

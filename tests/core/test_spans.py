@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from catenary.spans import SpanAccumulator, SpanLayout
+from catenary.measurement.spans import SpanAccumulator, SpanLayout
 
 
 def test_statistics_in_blocks_equal_those_of_the_whole():

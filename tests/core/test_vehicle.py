@@ -10,7 +10,7 @@ import pytest
 
 from catenary.domain import VehicleGeometry
 from catenary.errors import FormatError, UserError
-from catenary.vehicle import (
+from catenary.measurement.vehicle import (
     load_vehicle_geometry,
     parse_vehicle_geometry,
     roll_rad,

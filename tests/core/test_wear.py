@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from catenary.wear import (
+from catenary.measurement.wear import (
     DEFAULT_WINDOW_M,
     SCREEN_HALF_WINDOW_M,
     corrected_wear_width_mm,

@@ -9,7 +9,7 @@ from sqlalchemy import create_engine, select
 from sqlalchemy.orm import Session
 
 from catenary.cli import cli
-from catenary.runfile import open_run
+from catenary.measurement.runfile import open_run
 from catenary.storage.models import RigCalibration, Run
 from catenary_linescan.rig import read_rig
 

@@ -14,17 +14,16 @@ import pytest
 from sqlalchemy import Engine, select
 from sqlalchemy.orm import Session
 
-from catenary import hookimpl
-from catenary.alerts import (
+from catenary.limits import thresholds
+from catenary.maintenance.actions import record_maintenance
+from catenary.maintenance.alerts import (
     RESOLVE_MARGIN_MM,
     alert_record,
     announce_alerts,
     evaluate_alerts,
     resolve_alert,
 )
-from catenary.limits import thresholds
-from catenary.maintenance import record_maintenance
-from catenary.plugins import PluginRegistry
+from catenary.plugins import PluginRegistry, hookimpl
 from catenary.storage.database import session_scope
 from catenary.storage.models import Alert, Run, Track
 

@@ -8,7 +8,7 @@ import pytest
 from sqlalchemy import Engine, select
 
 from catenary.errors import FormatError
-from catenary.register import read_register
+from catenary.measurement.masts import read_register
 from catenary.storage.database import session_scope
 from catenary.storage.models import Mast
 from catenary.storage.runs import register_track, track_masts

@@ -7,7 +7,7 @@ from datetime import UTC, datetime
 import numpy as np
 import pytest
 
-from catenary.forecast import (
+from catenary.maintenance.forecast import (
     EPOCH,
     fit_histories,
     moment_of,

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from catenary.history import (
+from catenary.maintenance.history import (
     Repairs,
     SpanRows,
     section_measurements,

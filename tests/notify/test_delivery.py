@@ -12,12 +12,15 @@ from typing import Any
 import pytest
 from sqlalchemy import Engine, select
 
-from catenary import hookimpl
 from catenary.config import Settings
 from catenary.errors import UserError
-from catenary.notify import deliver_pending, notification_config, queue_notifications
-from catenary.plugins import PluginRegistry
-from catenary.registrations import Notifier
+from catenary.maintenance.notifications import (
+    deliver_pending,
+    notification_config,
+    queue_notifications,
+)
+from catenary.plugins import PluginRegistry, hookimpl
+from catenary.plugins.types import Notifier
 from catenary.storage.database import session_scope
 from catenary.storage.models import Alert, AlertNotification
 

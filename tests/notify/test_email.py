@@ -15,7 +15,7 @@ from typing import Any
 import pytest
 from sqlalchemy import Engine, select
 
-from catenary.notify import deliver_pending
+from catenary.maintenance.notifications import deliver_pending
 from catenary.plugins import PluginRegistry
 from catenary.storage.database import session_scope
 from catenary.storage.models import AlertNotification

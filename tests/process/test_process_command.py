@@ -22,8 +22,8 @@ from sqlalchemy import create_engine, func, select
 from sqlalchemy.orm import Session
 
 from catenary.cli import cli
-from catenary.run_commands import SPAN_COLUMNS
-from catenary.samples import EXPORT_COLUMNS
+from catenary.measurement.samples import EXPORT_COLUMNS
+from catenary.measurement.spans import SPAN_COLUMNS
 from catenary.storage import migrate
 from catenary.storage.database import make_engine
 from catenary.storage.models import Mast, Run, SpanMeasurement

@@ -7,7 +7,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from catenary.runfile import open_run
+from catenary.measurement.runfile import open_run
 from catenary_linescan.calibrate import calibrate_from_captures, rig_from_reports
 from catenary_linescan.processor.stereo import LineScanProcessor
 from catenary_linescan.simulator import DEMO_RIG_PATH, load_rig

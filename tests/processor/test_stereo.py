@@ -3,7 +3,7 @@
 The rig is calibrated as users calibrate it: the simulator renders the calibration tool's
 captures and ``calibrate_from_captures`` measures them (targets assigned with the mounting
 drawing's nominal poses); the processor never sees the true cameras. Its observations go
-through the core's chain (``roof_to_track``, ``catenary.wear``, the wire type's residual
+through the core's chain (``roof_to_track``, ``catenary.measurement.wear``, the wire type's residual
 thickness) and are compared with the truth of the running contact wires.
 
 Tolerances are the figures measured (``benchmarks/accuracy.py``) with margin; the targets
@@ -20,8 +20,8 @@ import pytest
 
 from catenary.domain import CameraLines, ScanBlock, VehicleSamples, WireObservations
 from catenary.errors import UserError
-from catenary.vehicle import roof_to_track
-from catenary.wear import (
+from catenary.measurement.vehicle import roof_to_track
+from catenary.measurement.wear import (
     corrected_wear_width_mm,
     screened_wear_width_by_wire_mm,
     stagger_angle_by_wire_rad,
@@ -159,7 +159,7 @@ class Score:
 
 def score(section: Section, obs: WireObservations, rig: Rig, screen: bool = False) -> Score:
     """The processor's rows against the truth; ``screen``: the widths screened along the
-    track as the pipeline does (``catenary.wear``)."""
+    track as the pipeline does (``catenary.measurement.wear``)."""
     t = section.truth
     row = obs.scan - section.first_scan
     distance = np.where(

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from catenary.errors import FormatError, UserError
+from catenary.measurement.runfile import RunFileWriter
 from catenary.plugins import PluginRegistry
-from catenary.runfile import RunFileWriter
 
 
 def test_recorded_source_streams_a_run_file(tmp_path: Path) -> None:

@@ -137,7 +137,7 @@ def alerts(database: str) -> str:
             for s in session.scalars(select(SpanMeasurement).where(SpanMeasurement.run_id == 2))
         }
 
-        def forecast(reach_at: str) -> dict[str, object]:  # catenary.alerts' details
+        def forecast(reach_at: str) -> dict[str, object]:  # catenary.maintenance.alerts' details
             return {
                 "wear_rate_mm_per_year": 0.12,
                 "runs": 4,

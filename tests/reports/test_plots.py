@@ -9,7 +9,7 @@ from sqlalchemy import create_engine, select
 from sqlalchemy.orm import Session
 
 from catenary.config import load_settings
-from catenary.run_samples import samples_file
+from catenary.measurement.samples import samples_file
 from catenary.storage.models import Run
 from catenary_reports.plots import PLOT_COLUMNS, EnvelopeGrid, envelope, envelope_path
 from catenary_reports.run_report import PANELS, _extent, _grid

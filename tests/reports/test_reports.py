@@ -16,7 +16,7 @@ from sqlalchemy import create_engine, select, update
 from sqlalchemy.orm import Session
 
 from catenary.cli import cli
-from catenary.run_commands import SPAN_COLUMNS
+from catenary.measurement.spans import SPAN_COLUMNS
 from catenary.storage.models import Mast, SpanMeasurement
 from catenary_reports.linear_events import MEASURES
 
@@ -131,8 +131,8 @@ def test_unknown_reporter_and_missing_output_are_refused(database: str, tmp_path
 FAKE_PLUGIN = """
 from pathlib import Path
 
-from catenary import hookimpl
-from catenary.registrations import Reporter
+from catenary.plugins import hookimpl
+from catenary.plugins.types import Reporter
 
 
 def write(request, output):

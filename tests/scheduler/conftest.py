@@ -12,10 +12,9 @@ import pytest
 import tomli_w
 from sqlalchemy import Engine
 
-from catenary import hookimpl
 from catenary.config import Settings, load_settings
-from catenary.plugins import PluginRegistry
-from catenary.registrations import Notifier, Reporter
+from catenary.plugins import PluginRegistry, hookimpl
+from catenary.plugins.types import Notifier, Reporter
 from catenary.storage import migrate
 from catenary.storage.database import make_engine
 

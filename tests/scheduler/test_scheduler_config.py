@@ -11,9 +11,9 @@ from apscheduler.triggers.interval import IntervalTrigger
 
 from catenary.config import load_settings
 from catenary.errors import UserError
-from catenary.jobs import output_path
-from catenary.notify import notification_config
-from catenary.scheduler import scheduler_config
+from catenary.maintenance.jobs import output_path
+from catenary.maintenance.notifications import notification_config
+from catenary.maintenance.scheduler import scheduler_config
 
 
 def settings_with(tmp_path: Path, text: str) -> Any:

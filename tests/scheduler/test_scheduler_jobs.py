@@ -17,13 +17,13 @@ from apscheduler.schedulers.background import BackgroundScheduler
 from sqlalchemy import Engine, select, text
 from sqlalchemy.orm import Session
 
-from catenary import jobs
-from catenary.alerts import Evaluation
 from catenary.config import Settings
 from catenary.errors import UserError
-from catenary.jobs import JobContext, run_job
+from catenary.maintenance import jobs
+from catenary.maintenance.alerts import Evaluation
+from catenary.maintenance.jobs import JobContext, run_job
+from catenary.maintenance.scheduler import make_scheduler, scheduler_config, sync_jobs
 from catenary.plugins import PluginRegistry
-from catenary.scheduler import make_scheduler, scheduler_config, sync_jobs
 from catenary.storage.database import session_scope
 from catenary.storage.models import Alert, AlertNotification, Line, Track
 
@@ -78,7 +78,7 @@ def wait_for(condition: Callable[[], Any], timeout_s: float = 10.0) -> None:
 def test_a_restart_keeps_a_job_and_its_next_fire_time(
     make_settings: Any, started: Any, engine: Engine, caplog: pytest.LogCaptureFixture
 ) -> None:
-    caplog.set_level(logging.INFO, "catenary.scheduler")
+    caplog.set_level(logging.INFO, "catenary.maintenance.scheduler")
     settings = make_settings(
         {
             "scheduler": {
@@ -99,7 +99,7 @@ def test_a_restart_keeps_a_job_and_its_next_fire_time(
 
     # the store holds the job's kind and options, nothing of the service
     state = stored(engine)["r"]
-    assert state["func"] == "catenary.jobs:run_job"
+    assert state["func"] == "catenary.maintenance.jobs:run_job"
     options = {"reporter": "fake", "output": "reports/{line}-{date}.txt", "line": "L1"}
     assert state["kwargs"] == {"job": "report", "options": options}
     assert (state["coalesce"], state["max_instances"], state["misfire_grace_time"]) == (
@@ -168,7 +168,7 @@ def test_a_report_job_runs_with_its_fire_time(
 def test_job_errors_and_missed_runs_are_logged(
     make_settings: Any, started: Any, fakes: Any, caplog: pytest.LogCaptureFixture
 ) -> None:
-    caplog.set_level(logging.INFO, "catenary.scheduler")
+    caplog.set_level(logging.INFO, "catenary.maintenance.scheduler")
     settings = make_settings(
         {
             "scheduler": {
@@ -216,7 +216,7 @@ def test_job_errors_and_missed_runs_are_logged(
 def test_one_instance_at_a_time(
     make_settings: Any, started: Any, fakes: Any, caplog: pytest.LogCaptureFixture
 ) -> None:
-    caplog.set_level(logging.INFO, "catenary.scheduler")
+    caplog.set_level(logging.INFO, "catenary.maintenance.scheduler")
     scheduler = started(
         make_settings({"scheduler": {"jobs": [report(interval_minutes=60)]}}), paused=False
     )
@@ -246,7 +246,7 @@ def context(engine: Engine, registry: PluginRegistry, make_settings: Any) -> Job
 def test_evaluate_alerts_skips_without_a_policy(
     context: JobContext, caplog: pytest.LogCaptureFixture
 ) -> None:
-    with caplog.at_level(logging.WARNING, "catenary.jobs"):
+    with caplog.at_level(logging.WARNING, "catenary.maintenance.jobs"):
         run_job("evaluate-alerts", {}, context, FIRE)
     assert caplog.messages == [
         "evaluate-alerts: no wear-limit policy configured ([limits]); skipped"
@@ -308,7 +308,7 @@ def test_deliver_notifications_job(
                 condition_key="k",
             )
         )
-    with caplog.at_level(logging.INFO, "catenary.jobs"):
+    with caplog.at_level(logging.INFO, "catenary.maintenance.jobs"):
         run_job("deliver-notifications", {}, context, FIRE)
     assert [alert["condition_key"] for alert in fakes.sent] == ["k"]
     assert caplog.messages == ["notifications: 1 sent, 0 failed"]

@@ -27,8 +27,8 @@ INTERVAL = timedelta(seconds=2.4)
 
 TICK_PLUGIN = """
 import os
-from catenary import hookimpl
-from catenary.registrations import Reporter
+from catenary.plugins import hookimpl
+from catenary.plugins.types import Reporter
 
 def write(request, path):
     with open(path, "a") as handle:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from click.testing import CliRunner
 
-from catenary.runfile import open_run
+from catenary.measurement.runfile import open_run
 from catenary_linescan.simulator import simulate
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from catenary.vehicle import roll_rad, roof_to_track, track_to_roof
+from catenary.measurement.vehicle import roll_rad, roof_to_track, track_to_roof
 from catenary_linescan.simulator.motion import Motion, MotionParams
 from catenary_linescan.simulator.rig import SimRig
 

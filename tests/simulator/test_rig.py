@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from catenary.errors import FormatError, UserError
-from catenary.vehicle import load_vehicle_geometry
+from catenary.measurement.vehicle import load_vehicle_geometry
 from catenary_linescan.simulator.rig import SimRig, load_rig
 from catenary_linescan.simulator.settings import DEMO_RIG_PATH
 

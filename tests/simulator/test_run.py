@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from catenary.errors import UserError
-from catenary.runfile import open_run
-from catenary.vehicle import roof_to_track
+from catenary.measurement.runfile import open_run
+from catenary.measurement.vehicle import roof_to_track
 from catenary_linescan.simulator import open_simulation, record_run
 from catenary_linescan.simulator.rig import SimRig
 

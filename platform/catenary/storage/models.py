@@ -437,8 +437,9 @@ class Alert(Base):
 class AlertNotification(Base):
     """The delivery of one alert to one notification channel, retried until sent.
 
-    ``notifier`` holds the channel's name (``catenary.notify``); ``next_attempt_at`` is when it
-    is next due (None: at once, while attempts remain; a failed one with None has used them all).
+    ``notifier`` holds the channel's name (``catenary.maintenance.notifications``);
+    ``next_attempt_at`` is when it is next due (None: at once, while attempts remain; a failed one
+    with None has used them all).
     """
 
     __tablename__ = "alert_notifications"

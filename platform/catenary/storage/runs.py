@@ -1,15 +1,20 @@
-"""Runs in the database: the register's lines, tracks and masts, finding and replacing runs."""
+"""Runs in the database: the register's lines, tracks and masts, storing, finding and replacing
+runs."""
 
 from __future__ import annotations
 
-from sqlalchemy import select
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
+from catenary.domain import TrackRegister, VehicleGeometry
 from catenary.errors import UserError
-from catenary.register import TrackRegister
-from catenary.storage.models import Line, Mast, RigCalibration, Run, Track
+from catenary.storage.models import Line, Mast, RigCalibration, Run, SpanMeasurement, Track
+from catenary.storage.rigs import register_rig_calibration
 
-__all__ = ["find_run", "find_stored_run", "register_track", "track_masts"]
+__all__ = ["find_run", "find_stored_run", "register_track", "store_run", "track_masts"]
 
 
 def register_track(session: Session, line_code: str, track_code: str) -> tuple[Line, Track]:
@@ -62,6 +67,49 @@ def track_masts(session: Session, track: Track, register: TrackRegister) -> int:
             changed += 1
     session.flush()
     return changed
+
+
+def store_run(
+    session: Session,
+    *,
+    line: str,
+    track: str,
+    register: TrackRegister | None,
+    geometry: VehicleGeometry,
+    rig_name: str,
+    rig_text: str,
+    replacing: int | None,
+    values: Mapping[str, Any],
+    span_rows: Sequence[SpanMeasurement],
+) -> tuple[Run, str | None]:
+    """Store a processed run in the caller's transaction.
+
+    Adds what is new of its line, track and masts (``register``), its vehicle and rig
+    calibration (versioned by content), and the run with ``values`` (``Run`` columns) and its
+    span measurements. A run processed again (``replacing``: its id) keeps its id and loses its
+    earlier span measurements. Returns the run, flushed (it has its id), and the samples key it
+    had before (None: none).
+    """
+    line_row, track_row = register_track(session, line, track)
+    if register is not None:
+        track_masts(session, track_row, register)
+    calibration = register_rig_calibration(session, geometry, rig_name, rig_text)
+    run = None if replacing is None else session.get(Run, replacing)
+    old_samples = None
+    if run is None:
+        run = Run()
+    else:
+        old_samples = run.samples_path
+        session.execute(delete(SpanMeasurement).where(SpanMeasurement.run_id == run.id))
+        session.expire(run, ["span_measurements"])
+    for name, value in values.items():
+        setattr(run, name, value)
+    run.line, run.track = line_row, track_row
+    run.vehicle, run.rig_calibration = calibration.vehicle, calibration
+    run.span_measurements = list(span_rows)
+    session.add(run)
+    session.flush()
+    return run, old_samples
 
 
 def find_stored_run(

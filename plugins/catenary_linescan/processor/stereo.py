@@ -10,8 +10,8 @@ The paper's processing module (section 3.3, figure 11, steps 2-3, and section 3.
    steady arms out by continuity, one wire number per contact wire.
 
 The output is :class:`catenary.domain.WireObservations` in the roof frame: the vehicle
-compensation, the stagger-angle correction (:mod:`catenary.wear`) and the residual thickness
-(the run's wire type) follow in the pipeline. ``cameras`` is the number of cameras that
+compensation, the stagger-angle correction (:mod:`catenary.measurement.wear`) and the residual
+thickness (the run's wire type) follow in the pipeline. ``cameras`` is the number of cameras that
 confirmed the point (a merged silhouette's support included): 3 or more, or 2 where a
 tracked wire was seen, with its worn face, by two cameras only. ``wear_width_mm`` is the worn
 face's width in the scanning plane from the cameras that agree on it (0.0: no face seen, a
@@ -54,7 +54,7 @@ import numpy as np
 
 from catenary.domain import ScanBlock, WireObservations
 from catenary.errors import UserError
-from catenary.vehicle import roll_rad
+from catenary.measurement.vehicle import roll_rad
 from catenary_linescan.rig import Rig, read_rig
 
 from .features import FeatureConfig, extract_features

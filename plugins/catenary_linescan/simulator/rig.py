@@ -1,8 +1,8 @@
 """The simulated rig: vehicle geometry, cameras (optics and sensor) and lamps, from TOML.
 
 A rig file (``calibration/demo-rig.sim.toml``) holds the FORMATS.md vehicle geometry keys at
-its top level (so ``catenary.vehicle.load_vehicle_geometry`` reads it too), a ``[lighting]``
-table and one ``[[cameras]]`` table per camera::
+its top level (so ``catenary.measurement.vehicle.load_vehicle_geometry`` reads it too), a
+``[lighting]`` table and one ``[[cameras]]`` table per camera::
 
     name = "demo-rig"
     roof_height_mm = 3900.0
@@ -52,7 +52,7 @@ from numpy.typing import ArrayLike
 
 from catenary.domain import FloatArray, VehicleGeometry
 from catenary.errors import FormatError, UserError
-from catenary.vehicle import parse_vehicle_geometry
+from catenary.measurement.vehicle import parse_vehicle_geometry
 from catenary_linescan.camera import LineScanCamera, camera_from_pose
 
 __all__ = ["LIGHTING_KINDS", "Lamp", "SimCamera", "SimRig", "load_rig", "parse_rig"]

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from catenary.errors import UserError
-from catenary.runfile import RunFileWriter
+from catenary.measurement.runfile import RunFileWriter
 
 from .settings import SimulationSettings, parse_settings
 from .simulation import Simulation

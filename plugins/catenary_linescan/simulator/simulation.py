@@ -6,7 +6,7 @@ blocks the run) it
 1. takes the scans' times, true distances and chainages, and the encoder's positions
    (:class:`.motion.Motion`);
 2. takes the car body's true pose and places every object of the scene, given in the track
-   frame, in the roof frame with ``catenary.vehicle.track_to_roof`` (FORMATS.md model);
+   frame, in the roof frame with ``catenary.measurement.vehicle.track_to_roof`` (FORMATS.md model);
 3. builds the cross-sections the scanning plane cuts: contact wires (round, with their worn
    face, widened by ``1/cos θ`` for the stagger angle), messengers, and the fittings the
    plane cuts in these scans (droppers, clamps, steady arms, registration tubes);
@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from catenary.domain import RunHeader, VehicleSamples
-from catenary.vehicle import track_to_roof
+from catenary.measurement.vehicle import track_to_roof
 
 from .motion import Motion, SensorSamples
 from .optics import CameraOptics

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from catenary import hookimpl
+from catenary.plugins import hookimpl
 from catenary.wiretype import WireType
 
 

@@ -7,25 +7,24 @@
    again and replaces it).
 2. **Measure** (pass 1): the run streams in blocks through the processor (a plugin: the
    ``linescan-stereo`` one unless told otherwise) and the measurement chain
-   (:mod:`catenary.pipeline`: vehicle compensation, stagger-angle correction) into an
+   (:mod:`catenary.measurement.chain`: vehicle compensation, stagger-angle correction) into an
    intermediate Parquet file; the stagger's turning points (the registration points) are
-   found on the way (:mod:`catenary.chainage`).
+   found on the way (:mod:`catenary.measurement.chainage`).
 3. **Align** the encoder's positions to chainage: to the mast register's masts through the
    registration points (fitting the encoder's scale error and the start chainage's error),
    or ``start + position`` without a register.
 4. **Finish** (pass 2): each sample's chainage, span (the register's masts, or the turning
    points without one), wire type and residual thickness, written to the run's samples file
-   (:mod:`catenary.samples`), and the span statistics (:mod:`catenary.spans`).
+   (:mod:`catenary.measurement.samples`), and the span statistics
+   (:mod:`catenary.measurement.spans`).
 5. **Store** in one transaction: the line, track and masts, the vehicle and rig calibration
    (versioned), the run and its span measurements. The samples file is named after the run
    and moved into place inside that transaction; a failure anywhere leaves neither a row
    nor a file behind.
-6. **Alerts**: once the run is committed, the wear-limit policy (``[limits]``, checked in
-   step 1) is evaluated on the spans it measured (:mod:`catenary.alerts`), in a transaction
-   of its own with the new alerts' notifications queued (:mod:`catenary.notify`; ``catenary
-   notify deliver`` or the scheduler sends them), and the new alerts are announced
-   (``catenary_alert_raised``); without a policy
-   the result says so.
+
+The alerts a stored run raises are not evaluated here (measurement knows nothing of
+maintenance): the command that processes the run evaluates them once it is committed
+(:func:`catenary.maintenance.alerts.evaluate_stored_run`).
 
 Memory stays flat whatever the run's length: blocks of scans, bounded buffers, Parquet row
 groups (``benchmarks/process_memory.py``).
@@ -44,33 +43,21 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-from sqlalchemy import delete
 
-from catenary.alerts import (
-    Evaluation,
-    announce_alerts,
-    check_policy,
-    configured_policy,
-    evaluate_alerts,
-    horizon_days,
-)
-from catenary.chainage import ChainageAlignment, TurningPointFinder, align_to_register
 from catenary.config import Settings
-from catenary.domain import RunHeader, WireObservations
+from catenary.domain import RunHeader, TrackRegister, WireObservations
 from catenary.errors import UserError
-from catenary.limits import LimitPolicy
-from catenary.notify import notification_config, queue_notifications
-from catenary.pipeline import MeasurementChain, TrackSamples
+from catenary.measurement.chain import MeasurementChain, TrackSamples
+from catenary.measurement.chainage import ChainageAlignment, TurningPointFinder, align_to_register
+from catenary.measurement.masts import read_register
+from catenary.measurement.runfile import open_run
+from catenary.measurement.samples import SampleWriter, read_sample_batches
+from catenary.measurement.spans import SpanAccumulator, SpanLayout, SpanStatistics
+from catenary.measurement.vehicle import load_vehicle_geometry
 from catenary.plugins import PluginRegistry
-from catenary.register import TrackRegister, read_register
-from catenary.runfile import open_run
-from catenary.samples import SampleWriter, read_sample_batches
-from catenary.spans import SpanAccumulator, SpanLayout, SpanStatistics
 from catenary.storage.database import open_database, session_scope
-from catenary.storage.models import Run, SpanMeasurement
-from catenary.storage.rigs import register_rig_calibration
-from catenary.storage.runs import find_stored_run, register_track, track_masts
-from catenary.vehicle import load_vehicle_geometry
+from catenary.storage.models import SpanMeasurement
+from catenary.storage.runs import find_stored_run, store_run
 from catenary.wiretype import WireType
 
 __all__ = ["DEFAULT_PROCESSOR", "ProcessRequest", "ProcessResult", "process_run"]
@@ -107,7 +94,6 @@ class ProcessRequest:
     track: str | None = None
     processor: str = DEFAULT_PROCESSOR
     replace: bool = False
-    policy: LimitPolicy | None = None  # the alerts' wear limits (default: the config's)
 
 
 @dataclass(frozen=True)
@@ -130,8 +116,49 @@ class ProcessResult:
     faulty: int = 0
     minimum: SpanMeasurement | None = None
     samples_path: Path | None = None
-    alerts: Evaluation | None = None
-    alerts_note: str = ""  # why alerts were not evaluated
+
+    def summary_lines(self) -> list[str]:
+        """The short summary of a stored run (the command adds its alerts and its id)."""
+        header = self.header
+        assert header is not None
+        low, high = self.chainage_range_m
+        lines = [
+            f"run        line {self.line} track {self.track or '-'}, {header.direction} "
+            f"chainage, {header.scans} scans, {self.length_m:.1f} m ({low:.1f} to {high:.1f} m)"
+        ]
+        alignment = self.alignment
+        if alignment is not None and alignment.aligned:
+            lines.append(
+                f"chainage   aligned to the register: {alignment.matched} of "
+                f"{alignment.turning_points} registration points on masts, residual RMS "
+                f"{alignment.residual_rms_m:.2f} m (encoder error {1 / alignment.scale - 1:+.3%}, "
+                f"start {header.start_chainage_m:.1f} m -> "
+                f"{alignment.chainage_m(np.zeros(1))[0]:.1f} m)"
+            )
+        elif alignment is not None:
+            lines.append(f"chainage   start + encoder distance ({alignment.reason})")
+        wires = "" if self.span_rows == self.spans else f" ({self.span_rows} span-wires)"
+        lines.append(f"spans      {self.spans}{wires}")
+        if self.minimum is not None:
+            m = self.minimum
+            where = (
+                f"span {m.span}" if m.mast_from is None else f"masts {m.mast_from} to {m.mast_to}"
+            )
+            lines.append(
+                f"minimum    residual thickness {m.min_residual_thickness_mm:.2f} mm "
+                f"({m.wire_type}) at chainage {m.min_at_chainage_m:.1f} m, {where}, "
+                f"wire {m.wire}"
+            )
+        notes = []
+        if self.outside_spans:
+            notes.append(f"{self.outside_spans} outside the register's spans")
+        if self.faulty:
+            notes.append(f"{self.faulty} with a vehicle sensor fault (not in the span figures)")
+        extra = f" ({'; '.join(notes)})" if notes else ""
+        lines.append(f"samples    {self.samples} in {self.samples_path}{extra}")
+        if self.replaced:
+            lines.append("replaced   the run's earlier results")
+        return lines
 
 
 @dataclass(frozen=True)
@@ -145,8 +172,6 @@ class _Inputs:
     wire_types: dict[str, WireType]
     rig_text: str
     source_sha256: str
-    policy: LimitPolicy | None
-    horizon_days: float
 
 
 def file_sha256(path: Path) -> str:
@@ -205,9 +230,6 @@ def _check_inputs(request: ProcessRequest, settings: Settings, registry: PluginR
         raise UserError(f"{request.rig_path}: no such file") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise UserError(f"{request.rig_path}: cannot read the rig calibration ({exc})") from None
-    policy = request.policy or configured_policy(settings, registry.limit_policies())
-    if policy is not None:
-        check_policy(policy, wire_types)
     return _Inputs(
         header=header,
         line=line,
@@ -216,8 +238,6 @@ def _check_inputs(request: ProcessRequest, settings: Settings, registry: PluginR
         wire_types=wire_types,
         rig_text=rig_text,
         source_sha256=file_sha256(request.run_path),
-        policy=policy,
-        horizon_days=horizon_days(settings),
     )
 
 
@@ -432,47 +452,36 @@ def process_run(
                 samples = writer.rows
             measured.unlink()
             span_rows = _span_rows(spans.results(), layout, request.wire_type)
+            header = inputs.header
             with session_scope(engine) as session:
-                line, track = register_track(session, inputs.line, inputs.track)
-                if inputs.register is not None:
-                    track_masts(session, track, inputs.register)
-                calibration = register_rig_calibration(
-                    session, geometry, request.rig_path.stem, inputs.rig_text
+                run, old_samples = store_run(
+                    session,
+                    line=inputs.line,
+                    track=inputs.track,
+                    register=inputs.register,
+                    geometry=geometry,
+                    rig_name=request.rig_path.stem,
+                    rig_text=inputs.rig_text,
+                    replacing=replaced,
+                    span_rows=span_rows,
+                    values=dict(
+                        direction=header.direction,
+                        source_file=str(request.run_path.resolve()),
+                        source_sha256=inputs.source_sha256,
+                        wire_type=request.wire_type,
+                        started_at=_started_at(header),
+                        processed_at=datetime.now(UTC),
+                        scans=header.scans,
+                        length_m=float(abs(ends[1] - ends[0])),
+                        status="complete",
+                        error=None,
+                        chainage_aligned=alignment.aligned,
+                        chainage_offset_m=alignment.offset_m,
+                        encoder_scale=alignment.scale,
+                        alignment_matched=alignment.matched,
+                        alignment_rms_m=alignment.residual_rms_m if alignment.aligned else None,
+                    ),
                 )
-                header = inputs.header
-                run = None if replaced is None else session.get(Run, replaced)
-                if run is None:
-                    run = Run()
-                else:  # processed again: same run id, its results replaced
-                    old_samples = run.samples_path
-                    session.execute(delete(SpanMeasurement).where(SpanMeasurement.run_id == run.id))
-                    session.expire(run, ["span_measurements"])
-                values = dict(
-                    line=line,
-                    track=track,
-                    direction=header.direction,
-                    vehicle=calibration.vehicle,
-                    rig_calibration=calibration,
-                    source_file=str(request.run_path.resolve()),
-                    source_sha256=inputs.source_sha256,
-                    wire_type=request.wire_type,
-                    started_at=_started_at(header),
-                    processed_at=datetime.now(UTC),
-                    scans=header.scans,
-                    length_m=float(abs(ends[1] - ends[0])),
-                    status="complete",
-                    error=None,
-                    chainage_aligned=alignment.aligned,
-                    chainage_offset_m=alignment.offset_m,
-                    encoder_scale=alignment.scale,
-                    alignment_matched=alignment.matched,
-                    alignment_rms_m=alignment.residual_rms_m if alignment.aligned else None,
-                )
-                for name, value in values.items():
-                    setattr(run, name, value)
-                run.span_measurements = span_rows
-                session.add(run)
-                session.flush()
                 final = folder / f"run-{run.id}-{token}.parquet"
                 partial.replace(final)
                 run.samples_path = str(final.relative_to(settings.data_dir))
@@ -485,18 +494,6 @@ def process_run(
                 if path is not None:
                     path.unlink(missing_ok=True)
             raise
-        alerts = None
-        if inputs.policy is not None:
-            with session_scope(engine) as session:
-                alerts = evaluate_alerts(
-                    session,
-                    inputs.policy,
-                    inputs.wire_types,
-                    run_ids=[run_id],
-                    horizon_days=inputs.horizon_days,
-                )
-                queue_notifications(session, notification_config(settings))
-            announce_alerts(engine, registry, alerts.new)
     registry.run_stored(run_id, settings.database_url)
     minimum = min(span_rows, key=lambda r: r.min_residual_thickness_mm, default=None)
     return ProcessResult(
@@ -516,8 +513,4 @@ def process_run(
         faulty=faulty,
         minimum=minimum,
         samples_path=final,
-        alerts=alerts,
-        alerts_note=""
-        if alerts is not None
-        else "not evaluated: no wear-limit policy ([limits] policy in the config)",
     )

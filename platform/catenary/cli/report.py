@@ -1,71 +1,20 @@
 """``catenary report NAME``: a report or export written by a registered reporter.
 
-Reporters come from plugins (hook ``catenary_reporters``; the built-ins are in
-``catenary_reports``), so a third party's reporter is run exactly like the built-ins. The
-command builds a request, calls ``Reporter.write(request, output)`` inside an error boundary
-and prints the path written. The request (``report_request``, also for scheduled report jobs)
-is a mapping with the keys:
-
-- ``settings``: the ``Settings`` of the invocation (database URL, data directory, sections);
-- ``registry``: the ``PluginRegistry`` (wire types, limit policies);
-- ``policy``: the wear-limit ``LimitPolicy`` (``--policy NAME``, else the config's
-  ``[limits]``), or None without one;
-- ``runs``: the run references given (ids or ``latest``), a tuple of str;
-- ``line``, ``track``: codes, or None;
-- ``options``: the ``--set KEY=VALUE`` pairs, a dict of str.
-
-A reporter chooses its output's format by the file's suffix and refuses, in one line, what it
-does not take.
+The command builds a request (:mod:`catenary.maintenance.reports`), calls
+``Reporter.write(request, output)`` inside an error boundary and prints the path written.
 """
 
 from __future__ import annotations
 
-import dataclasses
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import click
 
-from catenary.config import Settings
+from catenary.cli.app import app_of, database_option
 from catenary.errors import UserError
-from catenary.limits import LimitPolicy, policy_from_config, select_policy
 from catenary.plugins import PluginRegistry
-from catenary.run_commands import database_option
 
-__all__ = ["report", "report_request"]
-
-
-def _policy(settings: Settings, registry: PluginRegistry, name: str | None) -> LimitPolicy | None:
-    presets = registry.limit_policies()
-    if name is not None:
-        return select_policy(presets, name, origin="wear-limit presets")
-    return policy_from_config(
-        settings.sections.get("limits"), presets=presets, config_path=settings.config_path
-    )
-
-
-def report_request(
-    settings: Settings,
-    registry: PluginRegistry,
-    *,
-    runs: tuple[str, ...] = (),
-    line: str | None = None,
-    track: str | None = None,
-    policy: str | None = None,
-    options: Mapping[str, str] | None = None,
-) -> dict[str, Any]:
-    """The request a reporter's ``write`` takes (module docstring); ``policy`` names a preset
-    (default: the config's ``[limits]``)."""
-    return {
-        "settings": settings,
-        "registry": registry,
-        "policy": _policy(settings, registry, policy),
-        "runs": tuple(runs),
-        "line": line,
-        "track": track,
-        "options": dict(options or {}),
-    }
+__all__ = ["report"]
 
 
 def _options(pairs: tuple[str, ...]) -> dict[str, str]:
@@ -138,12 +87,10 @@ def report(
     catenary report linear-events [--line L] [--run RUN|--latest] -o events.csv|.parquet
     catenary report repeatability RUN_A RUN_B -o repeat.html|histogram.csv
     """
-    from catenary.cli import app_of  # the CLI module imports this one
+    from catenary.maintenance.reports import report_request
 
     app = app_of(ctx)
-    settings = app.settings
-    if database_url:
-        settings = dataclasses.replace(settings, database_url=database_url)
+    settings = app.settings_for(database_url)
     registry = app.registry
     if list_reporters:
         _list(registry)

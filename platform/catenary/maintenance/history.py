@@ -8,7 +8,7 @@ stagger range, the sign of the run's direction undone). Outside overlaps a span 
 position 0, whatever the runs; in an overlap the two wires are told apart by their lateral
 order. A **stretch** is a span by its masts (codes as the mast ids of the register), or by
 its chainages when it was measured without a register. A **history** is a stretch and
-position across runs, from its last repair on (``catenary.maintenance``).
+position across runs, from its last repair on (``catenary.maintenance.actions``).
 
 An **anchor section** (the register's ``anchor_section``: spans are in the section of their
 start mast) is measured by a run when the run's spans of that section and position cover
@@ -26,8 +26,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from catenary.forecast import WearFit, fit_histories
-from catenary.maintenance import touches
+from catenary.maintenance.actions import touches
+from catenary.maintenance.forecast import WearFit, fit_histories
 
 __all__ = [
     "SECTION_COVERAGE",
@@ -55,7 +55,8 @@ class SpanRows:
     ``mast_from``/``mast_to`` are mast ids (-1: measured without a register); ``wire_type`` an
     index into the caller's wire type names (-1: unknown); ``stagger_sum_mm`` is
     ``stagger_min_mm + stagger_max_mm`` in the run's track frame; ``time_years`` the run's start
-    (``catenary.forecast``) and ``direction`` +1 for increasing chainage, -1 for decreasing.
+    (``catenary.maintenance.forecast``) and ``direction`` +1 for increasing chainage, -1 for
+    decreasing.
     """
 
     measurement_id: IntArray

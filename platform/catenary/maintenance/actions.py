@@ -10,8 +10,8 @@ adjustment is recorded and changes nothing. An action covers
   mast 22 the spans between them but not those beyond either mast);
 - an **anchor section**: when it contains it, to ``COVER_TOLERANCE_M`` at either end;
 
-and the wire it names (``wire``: the wire's position in the span, see ``catenary.history``), or
-every wire when it names none.
+and the wire it names (``wire``: the wire's position in the span, see
+``catenary.maintenance.history``), or every wire when it names none.
 """
 
 from __future__ import annotations

@@ -6,22 +6,18 @@ from __future__ import annotations
 import logging
 import sys
 from datetime import datetime
-from typing import TYPE_CHECKING
 
 import click
 
-from catenary.notify import Attempt, deliver_pending, notification_config, undelivered
+from catenary.cli.app import app_of
+from catenary.maintenance.notifications import (
+    Attempt,
+    deliver_pending,
+    notification_config,
+    undelivered,
+)
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import AlertNotification
-
-if TYPE_CHECKING:
-    from catenary.cli import App
-
-
-def _app(ctx: click.Context) -> App:
-    from catenary.cli import app_of  # the CLI module imports this one
-
-    return app_of(ctx)
 
 
 def _when(moment: datetime | None) -> str:
@@ -49,7 +45,7 @@ def _describe(attempt: Attempt) -> str:
 @click.pass_context
 def deliver_command(ctx: click.Context) -> None:
     """One delivery pass: queue what is missing, send what is due, retry failures later."""
-    app = _app(ctx)
+    app = app_of(ctx)
     settings = app.settings
     if not notification_config(settings).channels:
         click.echo("no notification channels configured ([[notifications.channels]])")
@@ -88,7 +84,7 @@ def _status_line(row: AlertNotification, configured: set[str]) -> str:
 @click.pass_context
 def status_command(ctx: click.Context) -> None:
     """List the notifications not sent (pending or failed), with their last error."""
-    settings = _app(ctx).settings
+    settings = app_of(ctx).settings
     configured = {channel.name for channel in notification_config(settings).channels}
     with open_database(settings.database_url) as engine, session_scope(engine) as session:
         rows = undelivered(session)
@@ -109,11 +105,12 @@ LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 @click.pass_context
 def scheduler(ctx: click.Context) -> None:
     """Run the scheduled jobs of [scheduler] as a service, until SIGTERM or Ctrl-C."""
-    from catenary.scheduler import serve  # APScheduler is loaded by the service only
+    from catenary.maintenance.scheduler import serve  # APScheduler is loaded by the service only
 
-    app = _app(ctx)
+    app = app_of(ctx)
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT, stream=sys.stderr)
-    # the service logs runs, errors and missed runs itself (catenary.scheduler.log_job_event)
+    # the service logs runs, errors and missed runs itself
+    # (catenary.maintenance.scheduler.log_job_event)
     logging.getLogger("apscheduler").setLevel(logging.WARNING)
     logging.getLogger("apscheduler.executors").setLevel(logging.CRITICAL)
     logging.getLogger("alembic").setLevel(logging.WARNING)  # its revision checks at start

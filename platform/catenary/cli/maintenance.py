@@ -8,57 +8,41 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import click
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from catenary.alerts import (
+from catenary.cli.app import app_of, database_option
+from catenary.errors import UserError
+from catenary.limits import LEVELS, LimitPolicy, choose_policy
+from catenary.maintenance.actions import REPAIR_KINDS, record_maintenance
+from catenary.maintenance.alerts import (
     acknowledge_alert,
     announce_alerts,
-    configured_policy,
     evaluate_alerts,
     horizon_days,
     list_alerts,
     resolve_alert,
 )
-from catenary.errors import UserError
-from catenary.limits import LEVELS, LimitPolicy, load_policies, select_policy
-from catenary.maintenance import REPAIR_KINDS, record_maintenance
-from catenary.run_commands import database_option
+from catenary.plugins.context import CommandContext
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import ALERT_STATUSES, MAINTENANCE_KINDS, Alert, Line, Mast, Track
 from catenary.storage.runs import find_run
 
-if TYPE_CHECKING:
-    from catenary.cli import App
-
 __all__ = ["alerts", "maintenance"]
 
 
-def _app(ctx: click.Context, database_url: str | None) -> tuple[App, str]:
-    from catenary.cli import app_of  # the CLI module imports this one
-
+def _app(ctx: click.Context, database_url: str | None) -> tuple[CommandContext, str]:
     app = app_of(ctx)
     return app, database_url or app.settings.database_url
 
 
-def _policy(app: App, name: str | None, policy_file: Path | None) -> LimitPolicy:
+def _policy(app: CommandContext, name: str | None, policy_file: Path | None) -> LimitPolicy:
     """The policy named on the command line (a preset, or one of ``policy_file``), else the
     config's ``[limits]``."""
     presets = app.registry.limit_policies()
-    if policy_file is not None:
-        policies = load_policies(policy_file)
-        if name is None and len(policies) != 1:
-            known = ", ".join(sorted(policies))
-            raise UserError(
-                f"{policy_file}: holds several policies, choose one with --policy ({known})"
-            )
-        return select_policy(policies, name or next(iter(policies)), origin=str(policy_file))
-    if name is not None:
-        return select_policy(presets, name, origin="wear-limit presets")
-    policy = configured_policy(app.settings, presets)
+    policy = choose_policy(app.settings, presets, name, policy_file)
     if policy is None:
         raise UserError(
             'no wear-limit policy: set [limits] policy = "NAME" in the config, or give --policy '

@@ -38,7 +38,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .errors import UserError
+from catenary.errors import UserError
 
 __all__ = [
     "MATCH_STAGGER_MM",

@@ -55,7 +55,7 @@ from sqlalchemy import Engine
 
 from catenary.config import Settings
 from catenary.errors import UserError
-from catenary.jobs import JOBS, JobContext, check_options, run_job
+from catenary.maintenance.jobs import JOBS, JobContext, check_options, run_job
 from catenary.plugins import PluginRegistry
 from catenary.storage.database import open_database
 from catenary.storage.models import utc_now

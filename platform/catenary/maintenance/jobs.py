@@ -3,9 +3,10 @@
 Each kind is a plain function of a ``JobContext`` (settings, plugins, a unit of work on the
 platform database, a clock), the fire time it was scheduled for, and the job's options from
 the config. ``run_job`` is the one callable the scheduler's job store refers to
-(``catenary.jobs:run_job``, with the kind and options as keywords); the scheduler service's
-executor adds the context and the fire time to each run (``catenary.scheduler``), so a stored
-job holds no settings, secrets or connections.
+(``catenary.maintenance.jobs:run_job``, with the kind and options as keywords); the scheduler
+service's
+executor adds the context and the fire time to each run (``catenary.maintenance.scheduler``), so a
+stored job holds no settings, secrets or connections.
 """
 
 from __future__ import annotations
@@ -21,12 +22,16 @@ from typing import Any
 from sqlalchemy import Engine
 from sqlalchemy.orm import Session
 
-from catenary.alerts import announce_alerts, evaluate_all
 from catenary.config import Settings
 from catenary.errors import UserError
-from catenary.notify import deliver_pending, notification_config, queue_notifications
+from catenary.maintenance.alerts import announce_alerts, evaluate_all
+from catenary.maintenance.notifications import (
+    deliver_pending,
+    notification_config,
+    queue_notifications,
+)
+from catenary.maintenance.reports import report_request
 from catenary.plugins import PluginRegistry
-from catenary.report_command import report_request
 from catenary.storage.database import session_scope
 from catenary.storage.models import utc_now
 
@@ -181,5 +186,5 @@ def run_job(
     ``context`` and ``fire_time`` are given by the service's executor at each run, never stored.
     """
     if context is None or fire_time is None:
-        raise RuntimeError("catenary.jobs.run_job runs under `catenary scheduler` only")
+        raise RuntimeError("catenary.maintenance.jobs.run_job runs under `catenary scheduler` only")
     JOBS[job](context, fire_time, options)

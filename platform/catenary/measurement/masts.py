@@ -21,33 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from catenary.domain import FloatArray
+from catenary.domain import TrackRegister
 from catenary.errors import FormatError, UserError
 
-__all__ = ["REQUIRED_COLUMNS", "MastRegister", "TrackRegister", "read_register"]
+__all__ = ["REQUIRED_COLUMNS", "MastRegister", "read_register"]
 
 REQUIRED_COLUMNS = ("line", "track", "mast", "chainage_m", "wire_type")
-
-
-@dataclass(frozen=True)
-class TrackRegister:
-    """The masts of one line and track, sorted by chainage (each ``(k,)``)."""
-
-    line: str
-    track: str
-    mast: tuple[str, ...]
-    chainage_m: FloatArray
-    wire_type: tuple[str, ...]
-    design_stagger_mm: FloatArray  # NaN where not given
-    anchor_section: tuple[str | None, ...] | None = None  # None: the register has no such column
-
-    @property
-    def masts(self) -> int:
-        return len(self.mast)
-
-    def span_name(self, span: int) -> tuple[str, str]:
-        """The masts at the start and end of span ``span`` (from mast ``span`` to the next)."""
-        return self.mast[span], self.mast[span + 1]
 
 
 @dataclass(frozen=True)

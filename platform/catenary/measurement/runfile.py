@@ -74,6 +74,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from catenary.domain import (
+    DEFAULT_BLOCK_SCANS,
     BoolArray,
     CameraLines,
     FloatArray,
@@ -84,7 +85,6 @@ from catenary.domain import (
 from catenary.errors import FormatError, UserError
 
 __all__ = [
-    "DEFAULT_BLOCK_SCANS",
     "DEFAULT_COMPRESSION",
     "DEFAULT_GZIP_LEVEL",
     "DEFAULT_MAX_GAP_FACTOR",
@@ -107,7 +107,6 @@ COMPLETED_AT_ATTR: Final = "completed_at"
 
 DEFAULT_COMPRESSION: Final[str | None] = None
 DEFAULT_GZIP_LEVEL: Final = 1
-DEFAULT_BLOCK_SCANS: Final = 1024
 DEFAULT_MAX_GAP_FACTOR: Final = 2.5
 DEFAULT_FLUSH_INTERVAL_S: Final = 1.0
 

@@ -5,16 +5,16 @@ frame, releasing each scan's rows when its wire tracking has decided them (possi
 later). :class:`MeasurementChain` takes the blocks and those observations, in run order, and
 gives :class:`TrackSamples`:
 
-1. **vehicle compensation** (``catenary.vehicle.roof_to_track``): each row is carried to the
-   track frame with the displacement sensors of its own scan, kept for ``history_m`` of track
+1. **vehicle compensation** (``catenary.measurement.vehicle.roof_to_track``): each row is carried to
+   the track frame with the displacement sensors of its own scan, kept for ``history_m`` of track
    behind the latest block (a processor must release a scan before the train is that far on);
    a row whose scan had a faulty or missing sensor sample is flagged ``vehicle_fault``;
-2. **stagger-angle correction** (``catenary.wear``): ``w0 = w cos θ`` with ``θ`` from the
-   measured stagger gradient of the row's own wire, fitted with ``window_m`` of the wire's
+2. **stagger-angle correction** (``catenary.measurement.wear``): ``w0 = w cos θ`` with ``θ`` from
+   the measured stagger gradient of the row's own wire, fitted with ``window_m`` of the wire's
    samples on either side: a wire's rows are held until it has been seen ``window_m``
    further (or until the train is ``history_m + window_m`` past its last row: it has ended),
    and the last ``window_m`` of rows already given out are kept as the left context;
-3. **screen** (``catenary.wear.screened_wear_width_mm``): a width that departs from the
+3. **screen** (``catenary.measurement.wear.screened_wear_width_mm``): a width that departs from the
    widths of its wire on either side for a few scans (a fitting's disturbance) is left out
    (NaN); the row stays. Rows are held ``SCREEN_NOISE_HALF_WINDOW_M`` longer (how far the
    screen looks), so that it sees the stagger-corrected widths of both sides.
@@ -33,8 +33,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from catenary.domain import FloatArray, ScanBlock, VehicleGeometry, WireObservations
-from catenary.vehicle import roof_to_track
-from catenary.wear import (
+from catenary.measurement.vehicle import roof_to_track
+from catenary.measurement.wear import (
     DEFAULT_WINDOW_M,
     SCREEN_NOISE_HALF_WINDOW_M,
     corrected_wear_width_mm,
@@ -111,7 +111,7 @@ class MeasurementChain:
     geometry : VehicleGeometry
         The car body's geometry (the rig calibration's vehicle).
     window_m : float
-        Length of track of the stagger-gradient fit [m] (``catenary.wear``).
+        Length of track of the stagger-gradient fit [m] (``catenary.measurement.wear``).
     history_m : float
         Track behind the latest block whose scans' sensors are kept [m].
 

@@ -39,7 +39,7 @@ from catenary.config import Settings
 from catenary.errors import UserError
 from catenary.limits import LEVELS
 from catenary.plugins import PluginRegistry
-from catenary.registrations import Notifier
+from catenary.plugins.types import Notifier
 from catenary.storage.models import NAME_LENGTH, Alert, AlertNotification, Track, utc_now
 
 SessionFactory = Callable[[], AbstractContextManager[Session]]

@@ -16,9 +16,9 @@ from typing import Any, TypeVar
 
 import pluggy
 
-from catenary import hookspecs
 from catenary.limits import LimitPolicy
-from catenary.registrations import (
+from catenary.plugins import hookspecs
+from catenary.plugins.types import (
     Command,
     Notifier,
     Processor,

@@ -8,6 +8,7 @@ from contextlib import contextmanager
 import click
 from sqlalchemy import Engine
 
+from catenary.cli.app import app_of
 from catenary.storage import migrate
 from catenary.storage.database import mask_url, open_database, require_migrated
 
@@ -15,8 +16,6 @@ from catenary.storage.database import mask_url, open_database, require_migrated
 @contextmanager
 def _engine(ctx: click.Context) -> Iterator[Engine]:
     """The engine of the invocation's database (``--db``), disposed of on exit."""
-    from catenary.cli import app_of  # catenary.cli imports this module to add `db`
-
     with open_database(app_of(ctx).settings.database_url, migrated=False) as engine:
         yield engine
 

@@ -1,11 +1,11 @@
-"""``catenary record``: record a run file from a scan source and, optionally, a vehicle sensor
-source, through the one :class:`~catenary.runfile.RunFileWriter`.
+"""Recording a run file from a scan source and, optionally, a vehicle sensor
+source, through the one :class:`~catenary.measurement.runfile.RunFileWriter`.
 
 How the sources combine
 -----------------------
 * The **scan source** (``--source NAME``: ``simulator`` now, cameras later; ``recorded``
-  replays a run file) is a registered :class:`~catenary.registrations.Source` whose stream
-  has a ``header`` and ``blocks(block_scans)`` (:class:`~catenary.registrations.ScanStream`).
+  replays a run file) is a registered :class:`~catenary.plugins.types.Source` whose stream
+  has a ``header`` and ``blocks(block_scans)`` (:class:`~catenary.plugins.types.ScanStream`).
   Its header becomes the run's root attributes and cameras; its blocks' positions, times and
   lines are appended as they come.
 * The **vehicle sensor source** (``--vehicle-source NAME``, optional: ``can``, live bus or
@@ -19,8 +19,8 @@ How the sources combine
   is a one-line error. (A ``VehicleSource`` registration kind of its own would tell the
   roles apart before anything is opened.)
 * **Faults.** The run file has no fault column: a sample the source flags is written as NaN,
-  which the reader (:mod:`catenary.runfile`) takes as a faulty reading and flags every scan
-  between the valid samples either side of it.
+  which the reader (:mod:`catenary.measurement.runfile`) takes as a faulty reading and flags every
+  scan between the valid samples either side of it.
 
 Stopping
 --------
@@ -47,46 +47,30 @@ values (``20``, ``1.5``, ``true``, ``{a = 1}``), else as plain strings (``can0``
 from __future__ import annotations
 
 import signal
-import sys
 import threading
-import tomllib
-from collections.abc import Callable, Iterable, Iterator, Mapping
-from contextlib import ExitStack, contextmanager
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType, TracebackType
 from typing import Any, Final, Self
 
-import click
 import numpy as np
 
-from catenary.domain import RunHeader, ScanBlock, VehicleSamples
+from catenary.domain import DEFAULT_BLOCK_SCANS, RunHeader, ScanBlock, VehicleSamples
 from catenary.errors import UserError
-from catenary.plugins import PluginRegistry
-from catenary.registrations import ScanStream, Source, VehicleSource, VehicleStream
-from catenary.runfile import DEFAULT_BLOCK_SCANS, RunFileWriter
+from catenary.measurement.runfile import RunFileWriter
+from catenary.plugins.types import ScanStream, VehicleStream
 
 __all__ = [
-    "INTERRUPTED_EXIT_CODE",
     "VEHICLE_MARGIN_S",
     "Recording",
-    "VehicleStream",
-    "parse_options",
-    "record",
     "record_run",
+    "source_errors",
 ]
 
 VEHICLE_MARGIN_S: Final = 0.5
 """Vehicle samples are written up to this long after the last scan written [s]."""
-INTERRUPTED_EXIT_CODE: Final = 130
-RECORD_KEYS: Final = {
-    "source",
-    "source_options",
-    "vehicle_source",
-    "vehicle_options",
-    "max_scans",
-    "block_scans",
-}
 
 
 @dataclass(frozen=True)
@@ -183,7 +167,7 @@ class _InterruptGuard:
 
 
 @contextmanager
-def _source_errors(name: str) -> Iterator[None]:
+def source_errors(name: str) -> Iterator[None]:
     """A source's own failure (not a user error) as a one-line ``UserError`` naming it."""
     try:
         yield
@@ -326,10 +310,10 @@ def _stream_blocks(
     last_time_s: float | None = None
     blocks: Iterator[ScanBlock] | None = None
     try:
-        with _source_errors(scan_source):
+        with source_errors(scan_source):
             blocks = iter(scans.blocks(block_scans))
         while not guard.requested and (max_scans is None or writer.scans < max_scans):
-            with _source_errors(scan_source):
+            with source_errors(scan_source):
                 block = next(blocks, None)  # Ctrl-C raises here while the source waits
             if block is None:
                 break
@@ -342,7 +326,7 @@ def _stream_blocks(
                 if vehicle is None:
                     samples.push(_slice_vehicle(block.vehicle, n))
                 else:
-                    with _source_errors(vehicle_source):
+                    with source_errors(vehicle_source):
                         for part in vehicle.vehicle_samples(last_time_s + VEHICLE_MARGIN_S):
                             samples.push(part)
             if progress is not None:
@@ -352,238 +336,10 @@ def _stream_blocks(
     with guard.deferred():
         close = getattr(blocks, "close", None)
         if callable(close):
-            with _source_errors(scan_source):
+            with source_errors(scan_source):
                 close()
         if vehicle is not None and last_time_s is not None:
-            with _source_errors(vehicle_source):
+            with source_errors(vehicle_source):
                 for part in vehicle.vehicle_samples(last_time_s + VEHICLE_MARGIN_S, final=True):
                     samples.push(part)
         writer.close()
-
-
-# --------------------------------------------------------------------------------------------
-# The command
-
-
-def parse_options(pairs: Iterable[str], option: str) -> dict[str, Any]:
-    """``KEY=VALUE`` strings to a settings mapping (values as TOML, else plain strings)."""
-    settings: dict[str, Any] = {}
-    for pair in pairs:
-        key, sep, text = pair.partition("=")
-        key = key.strip()
-        if not sep or not key:
-            raise click.BadParameter(f"expected KEY=VALUE, got {pair!r}", param_hint=option)
-        try:
-            value: Any = tomllib.loads(f"v = {text}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = text
-        settings[key] = value
-    return settings
-
-
-def _record_section(section: Any, config_path: Path | None) -> dict[str, Any]:
-    where = f"{config_path}: " if config_path is not None else ""
-    if section is None:
-        return {}
-    if not isinstance(section, dict):
-        raise UserError(f"{where}[record] must be a table")
-    unknown = sorted(set(section) - RECORD_KEYS)
-    if unknown:
-        raise UserError(
-            f"{where}unknown key record.{unknown[0]} (known: {', '.join(sorted(RECORD_KEYS))})"
-        )
-    for key in ("source", "vehicle_source"):
-        if key in section and not isinstance(section[key], str):
-            raise UserError(f"{where}record.{key} must be a source name")
-    for key in ("source_options", "vehicle_options"):
-        if key in section and not isinstance(section[key], dict):
-            raise UserError(f"{where}record.{key} must be a table")
-    for key in ("max_scans", "block_scans"):
-        value = section.get(key)
-        if value is not None and (
-            isinstance(value, bool) or not isinstance(value, int) or value < 1
-        ):
-            raise UserError(f"{where}record.{key} must be a positive integer")
-    return dict(section)
-
-
-def _settings_for(
-    name: str, config: Mapping[str, Any], name_key: str, options_key: str, cli: dict[str, Any]
-) -> dict[str, Any]:
-    """The config's options for ``name`` (if it is the configured source), then the CLI's."""
-    settings: dict[str, Any] = {}
-    if config.get(name_key) == name:
-        settings.update(config.get(options_key, {}))
-    settings.update(cli)
-    return settings
-
-
-def _open_source(
-    registry: PluginRegistry, name: str, settings: Mapping[str, Any], kind: str
-) -> tuple[Any, str]:
-    """Open the scan source (``kind`` "source") or vehicle source ("vehicle source") ``name``."""
-    sources: Mapping[str, Source | VehicleSource] = (
-        registry.sources() if kind == "source" else registry.vehicle_sources()
-    )
-    source = sources.get(name)
-    if source is None:
-        other = registry.vehicle_sources() if kind == "source" else registry.sources()
-        hint = ""
-        if name in other:
-            other_kind, option = (
-                ("vehicle source", "--vehicle-source")
-                if kind == "source"
-                else ("source", "--source")
-            )
-            hint = f"; {name!r} is a {other_kind}: use {option}"
-        known = ", ".join(sorted(sources)) or "none"
-        raise UserError(f"unknown {kind} {name!r} (known: {known}){hint}")
-    label = f"{kind} {name!r} (plugin {registry.owner(kind, name)})"
-    with _source_errors(label):
-        stream = source.open(settings)
-    return stream, f"{kind} {name!r}"
-
-
-def _close(stream: object) -> None:
-    close = getattr(stream, "close", None)
-    if callable(close):
-        close()
-
-
-@click.command("record")
-@click.argument("out", type=click.Path(path_type=Path, dir_okay=False))
-@click.option(
-    "--source",
-    "source_name",
-    metavar="NAME",
-    help="Scan source (e.g. simulator; default: [record] source).",
-)
-@click.option(
-    "--source-option",
-    "source_options",
-    multiple=True,
-    metavar="KEY=VALUE",
-    help="A setting of the scan source (repeatable), e.g. length_m=20.",
-)
-@click.option(
-    "--vehicle-source",
-    "vehicle_name",
-    metavar="NAME",
-    help="Vehicle sensor source (e.g. can; default: [record] vehicle_source, else the scan "
-    "source's own sensor samples).",
-)
-@click.option(
-    "--vehicle-option",
-    "vehicle_options",
-    multiple=True,
-    metavar="KEY=VALUE",
-    help="A setting of the vehicle sensor source (repeatable), e.g. log=run.blf or "
-    "interface=socketcan.",
-)
-@click.option(
-    "--no-vehicle-source",
-    is_flag=True,
-    help="Ignore [record] vehicle_source: use the scan source's sensor samples.",
-)
-@click.option(
-    "--max-scans",
-    type=click.IntRange(min=1),
-    help="Stop after this many scans (default: [record] max_scans, else the source's end).",
-)
-@click.option(
-    "--block-scans",
-    type=click.IntRange(min=1),
-    help=f"Scans per block (default: [record] block_scans, else {DEFAULT_BLOCK_SCANS}).",
-)
-@click.option("--overwrite", is_flag=True, help="Replace an existing OUT.")
-@click.pass_context
-def record(
-    ctx: click.Context,
-    out: Path,
-    source_name: str | None,
-    source_options: tuple[str, ...],
-    vehicle_name: str | None,
-    vehicle_options: tuple[str, ...],
-    no_vehicle_source: bool,
-    max_scans: int | None,
-    block_scans: int | None,
-    overwrite: bool,
-) -> None:
-    """Record a run file OUT.h5 from a scan source and, optionally, a vehicle sensor source.
-
-    Ctrl-C stops cleanly: the scans recorded so far are kept in a complete run file.
-    """
-    from catenary.cli import app_of  # the CLI module imports this one
-
-    app = app_of(ctx)
-    config = _record_section(app.settings.sections.get("record"), app.settings.config_path)
-    scan_cli = parse_options(source_options, "--source-option")
-    vehicle_cli = parse_options(vehicle_options, "--vehicle-option")
-    source_name = source_name or config.get("source")
-    if not source_name:
-        raise click.UsageError("no scan source: give --source NAME or [record] source")
-    if no_vehicle_source:
-        if vehicle_name or vehicle_cli:
-            raise click.UsageError("--no-vehicle-source with --vehicle-source/--vehicle-option")
-    else:
-        vehicle_name = vehicle_name or config.get("vehicle_source")
-    if vehicle_cli and not vehicle_name:
-        raise click.UsageError("--vehicle-option needs --vehicle-source NAME")
-    max_scans = max_scans if max_scans is not None else config.get("max_scans")
-    block_scans = block_scans or config.get("block_scans") or DEFAULT_BLOCK_SCANS
-    registry = app.registry
-
-    with ExitStack() as stack:
-        scan_settings = _settings_for(source_name, config, "source", "source_options", scan_cli)
-        scan_stream, scan_label = _open_source(registry, source_name, scan_settings, "source")
-        stack.callback(_close, scan_stream)
-        vehicle_stream: VehicleStream | None = None
-        vehicle_label = "vehicle source"
-        if vehicle_name:
-            settings = _settings_for(
-                vehicle_name, config, "vehicle_source", "vehicle_options", vehicle_cli
-            )
-            vehicle_stream, vehicle_label = _open_source(
-                registry, vehicle_name, settings, "vehicle source"
-            )
-            stack.callback(_close, vehicle_stream)
-
-        header = scan_stream.header
-        total = header.scans if header.scans > 0 else None
-        if max_scans is not None:
-            total = max_scans if total is None else min(total, max_scans)
-        progress: Callable[[int], None] | None = None
-        if total:
-            bar = stack.enter_context(
-                click.progressbar(
-                    length=total, label=f"recording {out.name}", show_pos=True, file=sys.stderr
-                )
-            )
-            progress = bar.update
-        result = record_run(
-            out,
-            scan_stream,
-            vehicle=vehicle_stream,
-            max_scans=max_scans,
-            block_scans=block_scans,
-            overwrite=overwrite,
-            progress=progress,
-            scan_source=scan_label,
-            vehicle_source=vehicle_label,
-        )
-    summary = getattr(vehicle_stream, "summary", None)
-    if callable(summary):
-        click.echo(str(summary()))
-    if result.interrupted:
-        click.echo(
-            f"interrupted: kept {result.scans} scans in {result.path} "
-            "(complete up to the last block)"
-            if result.scans
-            else "interrupted before the first block: nothing recorded",
-            err=True,
-        )
-        ctx.exit(INTERRUPTED_EXIT_CODE)
-    click.echo(
-        f"recorded {result.path}: {result.scans} scans, {result.vehicle_samples} vehicle "
-        f"samples ({result.flagged_vehicle_samples} flagged)"
-    )

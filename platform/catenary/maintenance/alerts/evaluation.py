@@ -2,14 +2,16 @@
 
 **Rules.** Each rule of the configured policy (``catenary.limits``, ``[limits]``) is a
 residual thickness per wire type (``thresholds``). A ``local`` rule is met by a history
-(``catenary.history``: a span and wire across runs, from its last repair on) when the span's
+(``catenary.maintenance.history``: a span and wire across runs, from its last repair on) when the
+span's
 minimum residual thickness at its latest run reaches the threshold; an
 ``anchor_section_average`` rule by an anchor section when the samples-weighted mean residual
 thickness of its spans, at the latest run that measured it, does. (That is the thickness of
 the average, not the average worn fraction: where wear is concentrated in a few spans the
 section's average worn fraction is somewhat higher.)
 
-**Forecasts.** Each local rule also has a forecast (``catenary.forecast``): the history's wear
+**Forecasts.** Each local rule also has a forecast (``catenary.maintenance.forecast``): the
+history's wear
 rate (least squares over its runs, with its standard error) and the date its line reaches the
 threshold, with an interval from the rate's 95 % confidence interval. A forecast alert is
 raised when that date falls within the planning horizon (``[maintenance] horizon_days``,
@@ -19,8 +21,8 @@ threshold alert takes over).
 
 **Life cycle.** open -> acknowledged (by whom, when) -> resolved: by a later run whose value is
 back above the threshold by ``RESOLVE_MARGIN_MM`` (so that noise at the threshold does not
-open and close alerts in turn), by a repair covering it (``catenary.maintenance``), or by hand.
-A condition's ``condition_key`` is
+open and close alerts in turn), by a repair covering it (``catenary.maintenance.actions``), or by
+hand. A condition's ``condition_key`` is
 ``{kind}/{policy}#{rule}/t{track id}/w{position}/{stretch}/g{generation}``, the stretch being
 ``masts:{from}>{to}``, ``m:{start}>{end}`` (chainages, spans measured without a register) or
 ``section:{code}``; the generation counts the condition's earlier alerts, all resolved, so a
@@ -64,7 +66,9 @@ from sqlalchemy.orm import Session, aliased, joinedload
 
 from catenary.config import Settings
 from catenary.errors import UserError
-from catenary.forecast import (
+from catenary.limits import LEVELS, LimitPolicy, LimitRule, choose_policy, thresholds
+from catenary.maintenance.actions import REPAIR_KINDS
+from catenary.maintenance.forecast import (
     CONFIDENCE,
     ReachTimes,
     WearFit,
@@ -72,9 +76,8 @@ from catenary.forecast import (
     reach_times,
     years_since_epoch,
 )
-from catenary.history import Repairs, SpanRows, section_measurements, span_histories
-from catenary.limits import LEVELS, LimitPolicy, LimitRule, policy_from_config, thresholds
-from catenary.maintenance import REPAIR_KINDS
+from catenary.maintenance.history import Repairs, SpanRows, section_measurements, span_histories
+from catenary.maintenance.notifications import notification_config, queue_notifications
 from catenary.storage.columns import fetch_columns
 from catenary.storage.database import session_scope
 from catenary.storage.models import (
@@ -98,17 +101,20 @@ __all__ = [
     "DEFAULT_HORIZON_DAYS",
     "RESOLVE_MARGIN_MM",
     "Evaluation",
+    "RunAlerting",
     "acknowledge_alert",
     "alert_record",
     "announce_alerts",
     "check_policy",
-    "configured_policy",
     "evaluate_alerts",
     "evaluate_all",
+    "evaluate_stored_run",
     "horizon_days",
     "list_alerts",
     "new_alerts_since",
     "resolve_alert",
+    "run_alerting",
+    "run_alerts_lines",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -132,13 +138,6 @@ _LOCAL, _SECTION = "local", "anchor_section_average"
 
 
 # --- configuration --------------------------------------------------------------------------
-
-
-def configured_policy(settings: Settings, presets: Mapping[str, LimitPolicy]) -> LimitPolicy | None:
-    """The policy the config's ``[limits]`` section names (None without the section)."""
-    return policy_from_config(
-        settings.sections.get("limits"), presets=presets, config_path=settings.config_path
-    )
 
 
 def horizon_days(settings: Settings) -> float:
@@ -919,12 +918,69 @@ def evaluate_all(
     """Every span of the fleet with the configured policy (``[limits]``) and horizon
     (``[maintenance]``) at ``now``: the scheduler's job. None without a policy. Runs in the
     caller's transaction; announce the new alerts once it is committed (``announce_alerts``)."""
-    policy = configured_policy(settings, registry.limit_policies())
+    policy = choose_policy(settings, registry.limit_policies())
     if policy is None:
         return None
     return evaluate_alerts(
         session, policy, registry.wire_types(), now=now, horizon_days=horizon_days(settings)
     )
+
+
+@dataclass(frozen=True)
+class RunAlerting:
+    """What a run's alerts are evaluated with once it is stored: the wear-limit policy (None:
+    none configured), checked against the wire types before the run is processed, and the
+    planning horizon [days]."""
+
+    policy: LimitPolicy | None
+    wire_types: Mapping[str, WireType]
+    horizon_days: float
+
+
+def run_alerting(
+    settings: Settings, registry: PluginRegistry, policy: LimitPolicy | None = None
+) -> RunAlerting:
+    """The alerting of the runs a command stores: ``policy``, else the config's ``[limits]``;
+    raises ``UserError`` for a limit a wire type cannot reach, before anything is written."""
+    policy = policy or choose_policy(settings, registry.limit_policies())
+    wire_types = registry.wire_types()
+    if policy is not None:
+        check_policy(policy, wire_types)
+    return RunAlerting(policy, wire_types, horizon_days(settings))
+
+
+def evaluate_stored_run(
+    alerting: RunAlerting,
+    engine: Engine,
+    settings: Settings,
+    registry: PluginRegistry,
+    run_id: int,
+) -> Evaluation | None:
+    """Evaluate a committed run's spans (None without a policy), in a transaction of its own
+    with the new alerts' notifications queued, then announce the new alerts."""
+    if alerting.policy is None:
+        return None
+    with session_scope(engine) as session:
+        result = evaluate_alerts(
+            session,
+            alerting.policy,
+            alerting.wire_types,
+            run_ids=[run_id],
+            horizon_days=alerting.horizon_days,
+        )
+        queue_notifications(session, notification_config(settings))
+    announce_alerts(engine, registry, result.new)
+    return result
+
+
+def run_alerts_lines(result: Evaluation | None) -> list[str]:
+    """The alert lines of a stored run's summary."""
+    if result is None:
+        return ["alerts     not evaluated: no wear-limit policy ([limits] policy in the config)"]
+    return [
+        f"alerts     {result.summary()} (policy {result.policy})",
+        *(f"           {note}" for note in result.notes),
+    ]
 
 
 # --- the life cycle by hand, and what others read ---------------------------------------

@@ -3,7 +3,7 @@
 A plugin is a module or object with functions decorated by ``catenary.hookimpl`` and named
 after the specifications below; it is found through the ``catenary.plugins`` entry-point group
 (built-ins are registered exactly like third-party plugins). Contribution hooks only return
-registration objects (``catenary.registrations``); they must not do work or have side effects.
+registration objects (``catenary.plugins.types``); they must not do work or have side effects.
 The core calls the callables those objects carry, each inside its own error boundary, so one
 broken plugin never takes the platform down. Event hooks are called after the fact; an
 exception in one is reported with the plugin's name and does not stop the others.
@@ -17,7 +17,7 @@ from typing import Any
 import pluggy
 
 from catenary.limits import LimitPolicy
-from catenary.registrations import (
+from catenary.plugins.types import (
     Command,
     Notifier,
     Processor,

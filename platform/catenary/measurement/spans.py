@@ -10,18 +10,67 @@ stagger ranges and the number of samples, in memory bounded by the number of spa
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+import pyarrow as pa
 from numpy.typing import ArrayLike, NDArray
 
-from catenary.chainage import span_index
-from catenary.domain import FloatArray
-from catenary.register import TrackRegister
+from catenary.domain import FloatArray, TrackRegister
+from catenary.measurement.chainage import span_index
 
-__all__ = ["SpanAccumulator", "SpanLayout", "SpanStatistics"]
+__all__ = [
+    "SPAN_COLUMNS",
+    "SPAN_SCHEMA",
+    "SpanAccumulator",
+    "SpanLayout",
+    "SpanStatistics",
+    "span_table",
+]
 
 IntArray = NDArray[np.int64]
+
+SPAN_COLUMNS = (
+    "span",
+    "mast_from",
+    "mast_to",
+    "start_chainage_m",
+    "end_chainage_m",
+    "wire",
+    "wire_type",
+    "min_residual_thickness_mm",
+    "min_at_chainage_m",
+    "mean_residual_thickness_mm",
+    "height_min_mm",
+    "height_max_mm",
+    "stagger_min_mm",
+    "stagger_max_mm",
+    "samples",
+)
+"""The ``spans`` export's columns (FORMATS.md), in order."""
+
+SPAN_SCHEMA = pa.schema(
+    [
+        (
+            c,
+            pa.string()
+            if c in ("mast_from", "mast_to", "wire_type")
+            else pa.int64()
+            if c in ("span", "wire", "samples")
+            else pa.float64(),
+        )
+        for c in SPAN_COLUMNS
+    ]
+)
+"""The ``spans`` export's Arrow schema."""
+
+
+def span_table(rows: Iterable[object]) -> pa.Table:
+    """The ``spans`` export of ``rows`` (objects with the ``SPAN_COLUMNS`` as attributes, such
+    as stored span measurements), one row each, in their order."""
+    rows = list(rows)
+    return pa.table({c: [getattr(r, c) for r in rows] for c in SPAN_COLUMNS}, schema=SPAN_SCHEMA)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,69 @@
+"""What one invocation of ``catenary`` shares, and how its errors are printed.
+
+The invocation's ``CommandContext`` (settings and plugin registry, made on first use; plugin
+commands receive the same) is kept on the root context; every command reaches it through
+``app_of(ctx)``. Errors a user can cause (``UserError`` and its
+kinds, unreadable files, values outside a profile) are printed as one line without a
+traceback, with exit status 1; usage errors exit 2.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import click
+
+from catenary.errors import UserError
+from catenary.plugins.context import CommandContext
+from catenary.wiretype import ProfileRangeError
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def app_of(ctx: click.Context) -> CommandContext:
+    """The invocation's ``CommandContext``, kept on the root context."""
+    root = ctx.find_root()
+    if not isinstance(root.obj, CommandContext):
+        root.obj = CommandContext(root.params.get("config_path"), root.params.get("database_url"))
+    return root.obj
+
+
+def one_line_errors(call: Callable[[], Any]) -> Any:
+    """Run ``call``, turning errors a user can cause into a one-line ``ClickException``."""
+    try:
+        return call()
+    except (UserError, ProfileRangeError) as exc:
+        raise click.ClickException(str(exc)) from None
+    except OSError as exc:
+        where = f"{exc.filename}: " if exc.filename else ""
+        raise click.ClickException(f"{where}{exc.strerror or exc}") from None
+
+
+class CatenaryGroup(click.Group):
+    """The root group: its commands include the plugins', and its errors are one line."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        names = set(super().list_commands(ctx))
+        names |= set(one_line_errors(lambda: app_of(ctx).registry.commands()))
+        return sorted(names)
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        command = super().get_command(ctx, cmd_name)
+        if command is None:
+            found = one_line_errors(lambda: app_of(ctx).registry.commands()).get(cmd_name)
+            command = None if found is None else found.command
+        return command
+
+    def invoke(self, ctx: click.Context) -> Any:
+        return one_line_errors(lambda: super(CatenaryGroup, self).invoke(ctx))
+
+
+def database_option(command: F) -> F:
+    """``--db URL`` on a command, as the global option does."""
+    return click.option(
+        "--db",
+        "database_url",
+        metavar="URL",
+        help="Database URL (default: the global --db, $CATENARY_DATABASE_URL, the config).",
+    )(command)

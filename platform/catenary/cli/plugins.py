@@ -1,0 +1,29 @@
+"""``catenary plugins``: the plugins loaded, what each registers, and load errors."""
+
+from __future__ import annotations
+
+import click
+
+from catenary.cli.app import app_of
+
+__all__ = ["plugins_command"]
+
+
+@click.command("plugins")
+@click.option("--strict", is_flag=True, help="Exit with status 1 if any plugin failed.")
+@click.pass_context
+def plugins_command(ctx: click.Context, strict: bool) -> None:
+    """List the plugins loaded, what each registers, and load errors."""
+    registry = app_of(ctx).registry
+    for plugin, kinds in registry.registrations().items():
+        click.echo(plugin)
+        if not kinds:
+            click.echo("    (registers nothing)")
+        for kind, names in sorted(kinds.items()):
+            click.echo(f"    {kind}: {', '.join(names)}")
+    if registry.errors:
+        click.echo("errors:", err=True)
+        for error in registry.errors:
+            click.echo(f"    {error}", err=True)
+        if strict:
+            ctx.exit(1)

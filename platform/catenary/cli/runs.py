@@ -1,0 +1,162 @@
+"""The commands on runs: ``catenary process``, ``catenary export`` and ``catenary compare``."""
+
+from __future__ import annotations
+
+import sys
+from contextlib import ExitStack
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import click
+
+from catenary.cli.app import app_of, database_option
+
+if TYPE_CHECKING:
+    from catenary.domain import RunHeader
+
+__all__ = ["compare", "export", "process"]
+
+
+@click.command("process")
+@click.argument("run_path", metavar="RUN.h5", type=click.Path(path_type=Path, dir_okay=False))
+@click.option(
+    "--rig",
+    "rig_path",
+    required=True,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Rig calibration TOML (catenary calibrate).",
+)
+@click.option(
+    "--masts",
+    "register_path",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Mast register CSV: spans cut at its masts, chainage aligned to them.",
+)
+@click.option("--wire-type", help="Wire type of the whole run (default: the register's).")
+@click.option("--line", help="Line code (default: the run file's).")
+@click.option("--track", help="Track code (default: the run file's).")
+@click.option(
+    "--processor",
+    default="linescan-stereo",
+    show_default=True,
+    help="Processing method (catenary plugins lists them).",
+)
+@click.option("--replace", is_flag=True, help="Process a run already stored again, replacing it.")
+@database_option
+@click.pass_context
+def process(
+    ctx: click.Context,
+    run_path: Path,
+    rig_path: Path,
+    register_path: Path | None,
+    wire_type: str | None,
+    line: str | None,
+    track: str | None,
+    processor: str,
+    replace: bool,
+    database_url: str | None,
+) -> None:
+    """Process a recorded run into per-span wear in the database."""
+    from catenary.maintenance.alerts import evaluate_stored_run, run_alerting, run_alerts_lines
+    from catenary.measurement.process import ProcessRequest, process_run
+    from catenary.storage.database import open_database
+
+    app = app_of(ctx)
+    settings = app.settings_for(database_url)
+    request = ProcessRequest(
+        run_path=run_path,
+        rig_path=rig_path,
+        register_path=register_path,
+        wire_type=wire_type,
+        line=line,
+        track=track,
+        processor=processor,
+        replace=replace,
+    )
+    alerting = run_alerting(settings, app.registry)
+    with ExitStack() as stack:
+        bar: list[Any] = []
+
+        def start(header: RunHeader) -> None:
+            bar.append(
+                stack.enter_context(
+                    click.progressbar(
+                        length=header.scans,
+                        label="processing",
+                        file=sys.stderr,
+                        hidden=not sys.stderr.isatty(),  # no bar in logs
+                    )
+                )
+            )
+
+        result = process_run(
+            request, settings, app.registry, progress=lambda n: bar[0].update(n), on_start=start
+        )
+    if result.already_stored:
+        click.echo(
+            f"{run_path} is already stored with this rig calibration as run {result.run_id}: "
+            "nothing done (--replace processes it again)"
+        )
+        return
+    with open_database(settings.database_url) as engine:
+        alerts = evaluate_stored_run(alerting, engine, settings, app.registry, result.run_id)
+    for text in [*result.summary_lines(), *run_alerts_lines(alerts)]:
+        click.echo(text)
+    click.echo(f"stored as run {result.run_id}")
+
+
+@click.command("export")
+@click.argument("run_reference", metavar="RUN")
+@click.option(
+    "--what",
+    type=click.Choice(["samples", "spans"]),
+    required=True,
+    help="Full-resolution samples, or one row per span and wire.",
+)
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="FILE.csv or FILE.parquet.",
+)
+@database_option
+@click.pass_context
+def export(
+    ctx: click.Context, run_reference: str, what: str, output: Path, database_url: str | None
+) -> None:
+    """Export a run's samples or spans (RUN: a run id or 'latest') as CSV or Parquet."""
+    from catenary.measurement.export import export_run
+
+    written, run_id = export_run(
+        app_of(ctx).settings_for(database_url), run_reference, what, output
+    )
+    click.echo(f"{written} {what} of run {run_id} written to {output}")
+
+
+@click.command("compare")
+@click.argument("run_a", metavar="RUN_A")
+@click.argument("run_b", metavar="RUN_B")
+@database_option
+@click.pass_context
+def compare(ctx: click.Context, run_a: str, run_b: str, database_url: str | None) -> None:
+    """Repeatability: the residual thickness of two runs over the same section, point by point."""
+    from catenary.errors import UserError
+    from catenary.measurement.compare import compare_profiles
+    from catenary.measurement.samples import run_profile
+    from catenary.storage.database import open_database, session_scope
+    from catenary.storage.runs import find_run
+
+    settings = app_of(ctx).settings_for(database_url)
+    with open_database(settings.database_url) as engine, session_scope(engine) as session:
+        a, b = find_run(session, run_a), find_run(session, run_b)
+        if a.track_id != b.track_id:
+            raise UserError(f"runs {a.id} and {b.id} are on different tracks")
+        profiles = run_profile(settings, a), run_profile(settings, b)
+    try:
+        comparison = compare_profiles(*profiles)
+    except UserError as exc:
+        raise UserError(f"runs {a.id} and {b.id}: {exc}") from None
+    click.echo(f"run {a.id} against run {b.id}")
+    for text in comparison.summary_lines():
+        click.echo(text)

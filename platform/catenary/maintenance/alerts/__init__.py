@@ -1,0 +1,1 @@
+from catenary.maintenance.alerts.evaluation import *  # noqa: F403

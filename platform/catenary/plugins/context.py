@@ -1,0 +1,75 @@
+"""What a plugin's command receives: the invocation's settings, plugin registry and database.
+
+A command a plugin adds (hook ``catenary_commands``) takes it with ``@pass_command_context``
+instead of importing the CLI::
+
+    @click.command("hello")
+    @pass_command_context
+    def hello(context: CommandContext) -> None:
+        click.echo(f"{len(context.registry.wire_types())} wire types")
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import click
+
+from catenary.config import Settings, load_settings
+
+if TYPE_CHECKING:
+    from sqlalchemy import Engine
+
+    from catenary.plugins.manager import PluginRegistry
+
+__all__ = ["CommandContext", "pass_command_context"]
+
+
+class CommandContext:
+    """One invocation's settings (``--config``, ``--db``), plugin registry and database, each
+    made on first use."""
+
+    def __init__(self, config_path: Path | None = None, database_url: str | None = None) -> None:
+        self._config_path = config_path
+        self._database_url = database_url
+        self._settings: Settings | None = None
+        self._registry: PluginRegistry | None = None
+
+    @property
+    def settings(self) -> Settings:
+        if self._settings is None:
+            self._settings = load_settings(
+                config_path=self._config_path, database_url=self._database_url
+            )
+        return self._settings
+
+    @property
+    def registry(self) -> PluginRegistry:
+        if self._registry is None:
+            from catenary.plugins.manager import PluginRegistry
+
+            self._registry = PluginRegistry(disabled=self.settings.disabled_plugins)
+        return self._registry
+
+    def settings_for(self, database_url: str | None) -> Settings:
+        """The settings, with a command's own ``--db URL`` when it was given."""
+        if not database_url:
+            return self.settings
+        return dataclasses.replace(self.settings, database_url=database_url)
+
+    @contextmanager
+    def database(self, *, migrated: bool = True) -> Iterator[Engine]:
+        """The invocation's database (an engine, disposed of on exit); ``migrated``: refuse, in
+        one line, a database whose schema is not at the head revision."""
+        from catenary.storage.database import open_database
+
+        with open_database(self.settings.database_url, migrated=migrated) as engine:
+            yield engine
+
+
+pass_command_context = click.make_pass_decorator(CommandContext, ensure=True)
+"""Pass the invocation's ``CommandContext`` to a command as its first argument."""
