@@ -11,16 +11,20 @@ from __future__ import annotations
 
 import os
 import uuid
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
 import pytest
-from sqlalchemy import create_engine
+import tomli_w
+from sqlalchemy import Engine, create_engine
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session
 
+from catenary.config import Settings, load_settings
+from catenary.storage import migrate
+from catenary.storage.database import make_engine
 from catenary.storage.models import (
     Alert,
     Line,
@@ -73,6 +77,27 @@ def database_url(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[str
             connection.exec_driver_sql("SET LOCAL lock_timeout = '20s'")
             connection.exec_driver_sql(f'DROP SCHEMA IF EXISTS "{schema}" CASCADE')
         admin.dispose()
+
+
+@pytest.fixture
+def engine(database_url: str) -> Iterator[Engine]:
+    """An engine on a database migrated to head (``tests/storage`` has its own: empty)."""
+    engine = make_engine(database_url)
+    migrate.upgrade(engine)
+    yield engine
+    engine.dispose()
+
+
+@pytest.fixture
+def make_settings(tmp_path: Path, database_url: str) -> Callable[[dict[str, Any]], Settings]:
+    """Settings from a config file holding ``config`` (a TOML document as a dict)."""
+
+    def make(config: dict[str, Any]) -> Settings:
+        path = tmp_path / "catenary.toml"
+        path.write_text(tomli_w.dumps(config))
+        return load_settings(config_path=path, database_url=database_url)
+
+    return make
 
 
 T0 = datetime(2024, 5, 6, 7, 8, 9, tzinfo=UTC)

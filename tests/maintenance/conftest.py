@@ -3,17 +3,14 @@ masts and of runs over them with chosen span minima."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from datetime import UTC, datetime, timedelta
 from itertools import count
 
 import pytest
-from sqlalchemy import Engine
 from sqlalchemy.orm import Session
 
 from catenary.plugins import PluginRegistry
-from catenary.storage import migrate
-from catenary.storage.database import make_engine
 from catenary.storage.models import (
     Alert,
     Line,
@@ -29,15 +26,6 @@ T0 = datetime(2020, 1, 6, 9, 0, tzinfo=UTC)
 YEAR = timedelta(days=365.25)
 NEW_MM = 12.9  # CTA120 new
 MEAN_ABOVE_MIN_MM = 0.5  # a span's mean residual thickness above its minimum
-
-
-@pytest.fixture
-def engine(database_url: str) -> Iterator[Engine]:
-    """An engine on a database migrated to head."""
-    engine = make_engine(database_url)
-    migrate.upgrade(engine)
-    yield engine
-    engine.dispose()
 
 
 @pytest.fixture(scope="session")

@@ -4,40 +4,14 @@ fake notifier for the scheduler's tests."""
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import pytest
-import tomli_w
-from sqlalchemy import Engine
 
-from catenary.config import Settings, load_settings
 from catenary.plugins import PluginRegistry, hookimpl
 from catenary.plugins.types import Notifier, Reporter
-from catenary.storage import migrate
-from catenary.storage.database import make_engine
-
-
-@pytest.fixture
-def engine(database_url: str) -> Iterator[Engine]:
-    """An engine on a database migrated to head."""
-    engine = make_engine(database_url)
-    migrate.upgrade(engine)
-    yield engine
-    engine.dispose()
-
-
-@pytest.fixture
-def make_settings(tmp_path: Path, database_url: str) -> Callable[[dict[str, Any]], Settings]:
-    """Settings from a config file holding ``config`` (a TOML document as a dict)."""
-
-    def make(config: dict[str, Any]) -> Settings:
-        path = tmp_path / "catenary.toml"
-        path.write_text(tomli_w.dumps(config))
-        return load_settings(config_path=path, database_url=database_url)
-
-    return make
 
 
 class Fakes:

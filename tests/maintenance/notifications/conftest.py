@@ -15,19 +15,15 @@ from datetime import UTC, datetime
 from email import message_from_bytes, policy
 from email.message import EmailMessage
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
-from pathlib import Path
 from typing import Any
 
 import pytest
-import tomli_w
 from aiosmtpd.controller import Controller
 from aiosmtpd.smtp import AuthResult
 from sqlalchemy import Engine, select
 from sqlalchemy.orm import Session
 
-from catenary.config import Settings, load_settings
-from catenary.storage import migrate
-from catenary.storage.database import make_engine, session_scope
+from catenary.storage.database import session_scope
 from catenary.storage.models import Alert, Line, Track
 
 T0 = datetime(2024, 5, 6, 7, 8, 9, tzinfo=UTC)
@@ -37,15 +33,6 @@ def free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         return int(probe.getsockname()[1])
-
-
-@pytest.fixture
-def engine(database_url: str) -> Iterator[Engine]:
-    """An engine on a database migrated to head."""
-    engine = make_engine(database_url)
-    migrate.upgrade(engine)
-    yield engine
-    engine.dispose()
 
 
 class Clock:
@@ -87,18 +74,6 @@ def alerts(engine: Engine, alert_in: Callable[..., Alert]) -> Callable[..., int]
     def make(key: str, **columns: Any) -> int:
         with session_scope(engine) as session:
             return alert_in(session, key, **columns).id
-
-    return make
-
-
-@pytest.fixture
-def make_settings(tmp_path: Path, database_url: str) -> Callable[[dict[str, Any]], Settings]:
-    """Settings from a config file holding ``config`` (a TOML document as a dict)."""
-
-    def make(config: dict[str, Any]) -> Settings:
-        path = tmp_path / "catenary.toml"
-        path.write_text(tomli_w.dumps(config))
-        return load_settings(config_path=path, database_url=database_url)
 
     return make
 

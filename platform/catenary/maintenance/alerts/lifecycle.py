@@ -1,0 +1,163 @@
+"""The alert life cycle by hand (list, acknowledge, resolve) and what others read of alerts
+(new alerts, their records, their announcement to plugins)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING, Any
+
+from sqlalchemy import (
+    case,
+    select,
+)
+from sqlalchemy.engine import Engine
+from sqlalchemy.orm import Session, joinedload
+
+from catenary.errors import UserError
+from catenary.limits import LEVELS
+from catenary.storage.database import session_scope
+from catenary.storage.models import (
+    ALERT_STATUSES,
+    NAME_LENGTH,
+    Alert,
+    Line,
+    Track,
+)
+
+if TYPE_CHECKING:
+    from catenary.plugins import PluginRegistry
+
+__all__ = [
+    "ACTIVE",
+    "acknowledge_alert",
+    "alert_record",
+    "announce_alerts",
+    "iso_utc",
+    "list_alerts",
+    "new_alerts_since",
+    "resolve_alert",
+]
+
+ACTIVE = ("open", "acknowledged")
+"""Statuses of an alert still to be dealt with."""
+
+_SEVERITY = {level: rank for rank, level in enumerate(reversed(LEVELS))}  # critical first
+
+
+def list_alerts(
+    session: Session,
+    status: str = "active",
+    line: str | None = None,
+    levels: Sequence[str] = (),
+) -> list[Alert]:
+    """Alerts as a planner reads them: most severe level first, then line, track, chainage.
+
+    ``status``: one of ``ALERT_STATUSES``, ``active`` (open and acknowledged) or ``all``.
+    """
+    query = select(Alert).join(Track, Alert.track_id == Track.id).join(Line)
+    if status == "active":
+        query = query.where(Alert.status.in_(ACTIVE))
+    elif status in ALERT_STATUSES:
+        query = query.where(Alert.status == status)
+    elif status != "all":
+        known = ", ".join(("active", *ALERT_STATUSES, "all"))
+        raise UserError(f"unknown alert status {status!r} (known: {known})")
+    if line is not None:
+        query = query.where(Line.code == line)
+    if levels:
+        query = query.where(Alert.level.in_(levels))
+    severity = case(_SEVERITY, value=Alert.level, else_=len(_SEVERITY))
+    kind = case({"threshold": 0}, value=Alert.kind, else_=1)
+    return list(
+        session.scalars(
+            query.order_by(
+                severity, Line.code, Track.code, Alert.start_chainage_m, Alert.wire, kind, Alert.id
+            )
+        )
+    )
+
+
+def _alert(session: Session, alert_id: int) -> Alert:
+    alert = session.get(Alert, alert_id)
+    if alert is None:
+        raise UserError(f"no alert {alert_id} in the database")
+    return alert
+
+
+def _name(by: str) -> str:
+    name = by.strip()
+    if not name:
+        raise UserError("give a name (--by NAME)")
+    if len(name) > NAME_LENGTH:
+        raise UserError(f"name {name[:40]!r}...: at most {NAME_LENGTH} characters")
+    return name
+
+
+def acknowledge_alert(session: Session, alert_id: int, by: str, now: datetime) -> Alert:
+    """Mark open alert ``alert_id`` acknowledged by ``by`` at ``now``."""
+    name = _name(by)
+    alert = _alert(session, alert_id)
+    if alert.status == "acknowledged":
+        raise UserError(
+            f"alert {alert_id} is already acknowledged (by {alert.acknowledged_by} at "
+            f"{iso_utc(alert.acknowledged_at)})"
+        )
+    if alert.status == "resolved":
+        raise UserError(f"alert {alert_id} is resolved (at {iso_utc(alert.resolved_at)})")
+    alert.status, alert.acknowledged_by, alert.acknowledged_at = "acknowledged", name, now
+    session.flush()
+    return alert
+
+
+def resolve_alert(
+    session: Session, alert_id: int, by: str, now: datetime, note: str | None = None
+) -> Alert:
+    """Resolve alert ``alert_id`` by hand: by ``by`` at ``now``, with an optional ``note``.
+
+    The condition is raised again (a new alert) only from a run that starts after ``now``.
+    """
+    name = _name(by)
+    alert = _alert(session, alert_id)
+    if alert.status == "resolved":
+        raise UserError(f"alert {alert_id} is already resolved (at {iso_utc(alert.resolved_at)})")
+    alert.status, alert.resolved_at = "resolved", now
+    extra = {"resolution": "by hand", "resolved_by": name} | ({"note": note} if note else {})
+    alert.details = {**(alert.details or {}), **extra}
+    session.flush()
+    return alert
+
+
+def new_alerts_since(session: Session, after_id: int = 0) -> list[Alert]:
+    """Alerts raised after alert ``after_id`` (ids grow), in the order they were raised: what
+    a notifier that remembers the last id it sent has to send."""
+    return list(session.scalars(select(Alert).where(Alert.id > after_id).order_by(Alert.id)))
+
+
+def alert_record(alert: Alert) -> dict[str, Any]:
+    """An alert's stored fields, with its line and track codes (``line``, ``track``): what
+    the ``catenary_alert_raised`` hook receives."""
+    record = {c.key: getattr(alert, c.key) for c in Alert.__table__.columns}
+    record["line"], record["track"] = alert.track.line.code, alert.track.code
+    return record
+
+
+def announce_alerts(engine: Engine, registry: PluginRegistry, alert_ids: Sequence[int]) -> None:
+    """Call every plugin's ``catenary_alert_raised`` hook with each committed alert of
+    ``alert_ids`` (``alert_record``), in the order they were raised."""
+    chunk = 5000  # bound the IN list (SQLite's limit on variables)
+    for start in range(0, len(alert_ids), chunk):
+        with session_scope(engine) as session:
+            found = session.scalars(
+                select(Alert)
+                .where(Alert.id.in_(alert_ids[start : start + chunk]))
+                .options(joinedload(Alert.track).joinedload(Track.line))
+                .order_by(Alert.id)
+            )
+            records = [alert_record(alert) for alert in found]
+        for record in records:
+            registry.alert_raised(record)
+
+
+def iso_utc(moment: datetime | None) -> str | None:
+    return None if moment is None else moment.astimezone(UTC).isoformat(timespec="seconds")
