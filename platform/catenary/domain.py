@@ -17,6 +17,13 @@ BoolArray = NDArray[np.bool_]
 DEFAULT_BLOCK_SCANS = 1024
 """Scans per block when a source or reader is not told otherwise."""
 
+ALERT_STATUSES = ("open", "acknowledged", "resolved")
+"""An alert's life cycle."""
+MAINTENANCE_KINDS = ("wire_replaced", "reinforced", "spliced", "inspected", "adjusted")
+"""The work a maintenance action records."""
+REPAIR_KINDS = ("wire_replaced", "reinforced", "spliced")
+"""Kinds of action that renew the worn profile: they resolve alerts and restart histories."""
+
 
 @dataclass(frozen=True)
 class VehicleGeometry:

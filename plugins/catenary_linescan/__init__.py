@@ -13,9 +13,7 @@ from catenary.plugins.types import Command, Processor, Source
 
 @hookimpl
 def catenary_commands() -> list[Command]:
-    from catenary_linescan.calibrate import calibrate
-    from catenary_linescan.demo import demo
-    from catenary_linescan.simulator.command import simulate
+    from catenary_linescan.commands import calibrate, demo, simulate
 
     return [Command("calibrate", calibrate), Command("demo", demo), Command("simulate", simulate)]
 

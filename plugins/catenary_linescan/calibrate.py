@@ -154,37 +154,7 @@ def _print_reports(reports: list[CameraReport]) -> None:
         )
 
 
-@click.command("calibrate")
-@click.argument("captures", type=click.Path(path_type=Path, dir_okay=False, exists=True))
-@click.option(
-    "--vehicle",
-    "vehicle_path",
-    required=True,
-    type=click.Path(path_type=Path, dir_okay=False, exists=True),
-    help="Vehicle geometry TOML (FORMATS.md).",
-)
-@click.option(
-    "-o",
-    "--output",
-    required=True,
-    type=click.Path(path_type=Path, dir_okay=False),
-    help="Rig calibration TOML to write.",
-)
-@click.option(
-    "--distortion",
-    type=click.Choice(["auto", "on", "off"]),
-    default="auto",
-    show_default=True,
-    help="Estimate the radial lens term when the data support it, always, or never.",
-)
-@click.option(
-    "--approximate",
-    "approximate_path",
-    type=click.Path(path_type=Path, dir_okay=False, exists=True),
-    help="An earlier rig calibration, to assign targets a camera does not all see.",
-)
-@click.option("--pixels", type=click.IntRange(min=2), help="Line width (CSV point lists only).")
-def calibrate(
+def calibrate_rig(
     captures: Path,
     vehicle_path: Path,
     output: Path,

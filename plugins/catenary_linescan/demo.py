@@ -17,31 +17,17 @@ from pathlib import Path
 import click
 
 from catenary.limits import thresholds
-from catenary.plugins import CommandContext, pass_command_context
-from catenary_linescan.calibrate import calibrate
-from catenary_linescan.simulator.command import simulate
+from catenary.plugins import CommandContext
+from catenary_linescan.calibrate import calibrate_rig
+from catenary_linescan.simulator.command import simulate_run
 from catenary_linescan.simulator.settings import DEMO_RIG_PATH
 
 DEMO_POLICY = "manufacturer-30pct"
 """The wear limits without a configured policy (the simulated wire is fairly new: no alert)."""
 
 
-@click.command("demo")
-@click.option(
-    "--out",
-    type=click.Path(path_type=Path, file_okay=False),
-    default=Path("catenary-demo"),
-    show_default=True,
-    help="Folder for the demo's files (created; files in it are replaced).",
-)
-@click.option("--length-m", type=float, default=300.0, show_default=True, help="Run length.")
-@click.option("--seed", type=int, default=7, show_default=True, help="Scene, motion and noise.")
-@pass_command_context
-@click.pass_context
-def demo(
-    ctx: click.Context, context: CommandContext, out: Path, length_m: float, seed: int
-) -> None:
-    """Simulate a run on the demo rig, calibrate the rig, process the run, write its reports."""
+def run_demo(context: CommandContext, out: Path, length_m: float, seed: int) -> None:
+    """What ``catenary demo`` does (module docstring)."""
     from catenary.limits import choose_policy
     from catenary.maintenance.alerts import evaluate_stored_run, run_alerting, run_alerts_lines
     from catenary.maintenance.reports import report_request
@@ -59,12 +45,12 @@ def demo(
     run, captures, rig_path = out / "run.h5", out / "captures.h5", out / "rig.toml"
 
     click.echo(f"1/4 simulating {length_m:g} m of line with an overlap on the demo rig")
-    ctx.invoke(
-        simulate,
+    simulate_run(
         out=run,
         rig_path=DEMO_RIG_PATH,
         length_m=length_m,
         seed=seed,
+        scene_seed=None,
         lighting="night",
         overlap=True,
         sun_blind=None,
@@ -78,8 +64,7 @@ def demo(
     )
 
     click.echo("2/4 calibrating the rig from its captures")
-    ctx.invoke(
-        calibrate,
+    calibrate_rig(
         captures=captures,
         vehicle_path=DEMO_RIG_PATH,
         output=rig_path,

@@ -8,16 +8,20 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from catenary.errors import UserError
-from catenary.measurement.runfile import RunFile, open_run
 from catenary.plugins import hookimpl
 from catenary.plugins.types import Source
+
+if TYPE_CHECKING:
+    from catenary.measurement.runfile import RunFile
 
 
 def open_recorded(settings: Mapping[str, Any]) -> RunFile:
     """Open the run file named by ``settings["path"]``."""
+    from catenary.measurement.runfile import open_run
+
     path = settings.get("path")
     if not isinstance(path, str | Path) or not str(path):
         raise UserError(f"source 'recorded': setting 'path' must name a run file, not {path!r}")

@@ -7,7 +7,7 @@ from pathlib import Path
 from click.testing import CliRunner
 
 from catenary.measurement.runfile import open_run
-from catenary_linescan.simulator import simulate
+from catenary_linescan.commands import simulate
 
 
 def test_simulate_writes_run_truth_register_and_captures(

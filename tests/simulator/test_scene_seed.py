@@ -13,7 +13,7 @@ import pytest
 from click.testing import CliRunner
 
 from catenary.errors import UserError
-from catenary_linescan.simulator import simulate
+from catenary_linescan.commands import simulate
 from catenary_linescan.simulator.rig import SimRig
 from catenary_linescan.simulator.scene import Scene, generate_scene
 from catenary_linescan.simulator.settings import parse_settings

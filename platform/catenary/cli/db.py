@@ -4,23 +4,28 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import TYPE_CHECKING
 
 import click
-from sqlalchemy import Engine
 
 from catenary.cli.app import app_of
-from catenary.storage import migrate
-from catenary.storage.database import mask_url, open_database, require_migrated
+
+if TYPE_CHECKING:
+    from sqlalchemy import Engine
 
 
 @contextmanager
 def _engine(ctx: click.Context) -> Iterator[Engine]:
     """The engine of the invocation's database (``--db``), disposed of on exit."""
+    from catenary.storage.database import open_database
+
     with open_database(app_of(ctx).settings.database_url, migrated=False) as engine:
         yield engine
 
 
 def _describe_revision(revision: str | None) -> str:
+    from catenary.storage import migrate
+
     if revision is None:
         return "base (no schema)"
     head = migrate.head_revision()
@@ -38,6 +43,9 @@ def db() -> None:
 
 def _migrate(ctx: click.Context, move: Callable[[Engine, str], str | None], revision: str) -> None:
     """Run ``move`` (``migrate.upgrade`` or ``downgrade``) and say where the database is."""
+    from catenary.storage import migrate
+    from catenary.storage.database import mask_url
+
     with _engine(ctx) as engine:
         before = migrate.current_revision(engine)
         after = move(engine, revision)
@@ -54,6 +62,8 @@ def _migrate(ctx: click.Context, move: Callable[[Engine, str], str | None], revi
 @click.pass_context
 def upgrade_command(ctx: click.Context, revision: str) -> None:
     """Migrate the database up to REVISION (default: head, what this catenary needs)."""
+    from catenary.storage import migrate
+
     _migrate(ctx, migrate.upgrade, revision)
 
 
@@ -62,6 +72,8 @@ def upgrade_command(ctx: click.Context, revision: str) -> None:
 @click.pass_context
 def downgrade_command(ctx: click.Context, revision: str) -> None:
     """Migrate the database down to REVISION ('base' drops every table and its data)."""
+    from catenary.storage import migrate
+
     _migrate(ctx, migrate.downgrade, revision)
 
 
@@ -69,6 +81,9 @@ def downgrade_command(ctx: click.Context, revision: str) -> None:
 @click.pass_context
 def current_command(ctx: click.Context) -> None:
     """Show the database's revision and whether it is the one this catenary needs."""
+    from catenary.storage import migrate
+    from catenary.storage.database import mask_url
+
     with _engine(ctx) as engine:
         revision = migrate.current_revision(engine)
         where = mask_url(engine.url)
@@ -86,6 +101,9 @@ def current_command(ctx: click.Context) -> None:
 @click.pass_context
 def check_command(ctx: click.Context) -> None:
     """Check that the database's schema is what the models describe (exit 1 if not)."""
+    from catenary.storage import migrate
+    from catenary.storage.database import mask_url, require_migrated
+
     with _engine(ctx) as engine:
         require_migrated(engine)
         differences = migrate.check_models_match(engine)

@@ -8,27 +8,20 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
-from sqlalchemy import select
-from sqlalchemy.orm import Session
 
 from catenary.cli.app import app_of, database_option
+from catenary.domain import ALERT_STATUSES, MAINTENANCE_KINDS, REPAIR_KINDS
 from catenary.errors import UserError
 from catenary.limits import LEVELS, LimitPolicy, choose_policy
-from catenary.maintenance.actions import REPAIR_KINDS, record_maintenance
-from catenary.maintenance.alerts import (
-    acknowledge_alert,
-    announce_alerts,
-    evaluate_alerts,
-    horizon_days,
-    list_alerts,
-    resolve_alert,
-)
 from catenary.plugins.context import CommandContext
-from catenary.storage.database import open_database, session_scope
-from catenary.storage.models import ALERT_STATUSES, MAINTENANCE_KINDS, Alert, Line, Mast, Track
-from catenary.storage.runs import find_run
+
+if TYPE_CHECKING:
+    from sqlalchemy.orm import Session
+
+    from catenary.storage.models import Alert, Mast, Track
 
 __all__ = ["alerts", "maintenance"]
 
@@ -84,6 +77,10 @@ def evaluate_command(
     database_url: str | None,
 ) -> None:
     """Evaluate the wear limits and forecasts: raise, update and resolve alerts."""
+    from catenary.maintenance.alerts import announce_alerts, evaluate_alerts, horizon_days
+    from catenary.storage.database import open_database, session_scope
+    from catenary.storage.runs import find_run
+
     if (run_reference is None) == (not everything):
         raise click.UsageError("give --run ID or --all")
     app, url = _app(ctx, database_url)
@@ -153,6 +150,9 @@ def list_command(
     database_url: str | None,
 ) -> None:
     """List alerts, most severe first, then by line, track and chainage."""
+    from catenary.maintenance.alerts import list_alerts
+    from catenary.storage.database import open_database, session_scope
+
     _, url = _app(ctx, database_url)
     with open_database(url) as engine, session_scope(engine) as session:
         found = list_alerts(session, status=status, line=line, levels=levels)
@@ -174,6 +174,9 @@ def list_command(
 @click.pass_context
 def ack_command(ctx: click.Context, alert_id: int, by: str, database_url: str | None) -> None:
     """Acknowledge alert ID (open -> acknowledged)."""
+    from catenary.maintenance.alerts import acknowledge_alert
+    from catenary.storage.database import open_database, session_scope
+
     _, url = _app(ctx, database_url)
     with open_database(url) as engine, session_scope(engine) as session:
         alert = acknowledge_alert(session, alert_id, by, _now())
@@ -190,6 +193,9 @@ def resolve_command(
     ctx: click.Context, alert_id: int, by: str, note: str | None, database_url: str | None
 ) -> None:
     """Resolve alert ID by hand (a later run showing the condition raises a new alert)."""
+    from catenary.maintenance.alerts import resolve_alert
+    from catenary.storage.database import open_database, session_scope
+
     _, url = _app(ctx, database_url)
     with open_database(url) as engine, session_scope(engine) as session:
         alert = resolve_alert(session, alert_id, by, _now(), note=note)
@@ -202,6 +208,10 @@ def maintenance() -> None:
 
 
 def _track(session: Session, line: str, track: str) -> Track:
+    from sqlalchemy import select
+
+    from catenary.storage.models import Line, Track
+
     found = session.scalars(
         select(Track).join(Line).where(Line.code == line, Track.code == track)
     ).one_or_none()
@@ -211,6 +221,10 @@ def _track(session: Session, line: str, track: str) -> Track:
 
 
 def _mast(session: Session, track: Track, code: str, line: str) -> Mast:
+    from sqlalchemy import select
+
+    from catenary.storage.models import Mast
+
     found = session.scalars(
         select(Mast).where(Mast.track_id == track.id, Mast.code == code)
     ).one_or_none()
@@ -268,6 +282,9 @@ def record_command(
     database_url: str | None,
 ) -> None:
     """Record maintenance work on a stretch of wire (masts M1 to M2, or chainages X to Y)."""
+    from catenary.maintenance.actions import record_maintenance
+    from catenary.storage.database import open_database, session_scope
+
     by_masts = from_mast is not None or to_mast is not None
     by_chainage = from_m is not None or to_m is not None
     if (

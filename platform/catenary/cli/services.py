@@ -6,18 +6,17 @@ from __future__ import annotations
 import logging
 import sys
 from datetime import datetime
+from typing import TYPE_CHECKING
 
 import click
 
 from catenary.cli.app import app_of
-from catenary.maintenance.notifications import (
-    Attempt,
-    deliver_pending,
-    notification_config,
-    undelivered,
-)
-from catenary.storage.database import open_database, session_scope
-from catenary.storage.models import AlertNotification
+
+if TYPE_CHECKING:
+    from catenary.maintenance.notifications import (
+        Attempt,
+    )
+    from catenary.storage.models import AlertNotification
 
 
 def _when(moment: datetime | None) -> str:
@@ -45,6 +44,9 @@ def _describe(attempt: Attempt) -> str:
 @click.pass_context
 def deliver_command(ctx: click.Context) -> None:
     """One delivery pass: queue what is missing, send what is due, retry failures later."""
+    from catenary.maintenance.notifications import deliver_pending, notification_config
+    from catenary.storage.database import open_database, session_scope
+
     app = app_of(ctx)
     settings = app.settings
     if not notification_config(settings).channels:
@@ -84,6 +86,9 @@ def _status_line(row: AlertNotification, configured: set[str]) -> str:
 @click.pass_context
 def status_command(ctx: click.Context) -> None:
     """List the notifications not sent (pending or failed), with their last error."""
+    from catenary.maintenance.notifications import notification_config, undelivered
+    from catenary.storage.database import open_database, session_scope
+
     settings = app_of(ctx).settings
     configured = {channel.name for channel in notification_config(settings).channels}
     with open_database(settings.database_url) as engine, session_scope(engine) as session:

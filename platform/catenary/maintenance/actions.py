@@ -24,8 +24,9 @@ from numpy.typing import ArrayLike, NDArray
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from catenary.domain import MAINTENANCE_KINDS, REPAIR_KINDS
 from catenary.errors import UserError
-from catenary.storage.models import MAINTENANCE_KINDS, Alert, MaintenanceAction, Track
+from catenary.storage.models import Alert, MaintenanceAction, Track
 
 __all__ = [
     "COVER_TOLERANCE_M",
@@ -35,9 +36,6 @@ __all__ = [
     "record_maintenance",
     "touches",
 ]
-
-REPAIR_KINDS = ("wire_replaced", "reinforced", "spliced")
-"""Kinds of action that renew the worn profile: they resolve alerts and restart histories."""
 
 COVER_TOLERANCE_M = 0.5
 """How far an action's end may miss a span's or section's end [m] (chainages aligned to the

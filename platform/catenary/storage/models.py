@@ -44,6 +44,8 @@ from sqlalchemy.engine import Connection
 from sqlalchemy.orm import DeclarativeBase, Mapped, Mapper, mapped_column, relationship
 from sqlalchemy.types import TypeDecorator
 
+from catenary.domain import ALERT_STATUSES, MAINTENANCE_KINDS
+
 NAMING_CONVENTION: dict[str, str] = {
     "ix": "ix_%(table_name)s_%(column_0_N_name)s",
     "uq": "uq_%(table_name)s_%(column_0_N_name)s",
@@ -60,8 +62,6 @@ RUN_DIRECTIONS = ("increasing", "decreasing")
 RUN_STATUSES = ("processing", "complete", "failed")
 ALERT_LEVELS = ("plan", "urgent", "critical")  # catenary.limits.LEVELS
 ALERT_KINDS = ("threshold", "forecast")
-ALERT_STATUSES = ("open", "acknowledged", "resolved")
-MAINTENANCE_KINDS = ("wire_replaced", "reinforced", "spliced", "inspected", "adjusted")
 NOTIFICATION_STATUSES = ("pending", "sent", "failed")
 
 CODE_LENGTH = 32  # line, track, mast codes and wire type names

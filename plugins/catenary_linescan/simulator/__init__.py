@@ -8,7 +8,7 @@ beside them. See ``README.md`` in this directory.
 Public API
 ----------
 open_simulation(settings) -> SimulationStream   an acquisition source (ScanStream protocol)
-simulate                                        the ``catenary simulate`` click command
+simulate_run(out, ...)                          what ``catenary simulate`` does
 record_run(path, settings)                      write run + truth + mast register
 write_captures(path, rig)                       write calibration captures + truth
 load_rig(path) -> SimRig                        read a simulated rig TOML
@@ -17,7 +17,7 @@ load_rig(path) -> SimRig                        read a simulated rig TOML
 from __future__ import annotations
 
 from .captures import render_captures, write_captures
-from .command import simulate
+from .command import simulate_run
 from .rig import SimRig, load_rig
 from .run import record_run
 from .settings import DEMO_RIG_PATH, parse_settings
@@ -34,6 +34,6 @@ __all__ = [
     "parse_settings",
     "record_run",
     "render_captures",
-    "simulate",
+    "simulate_run",
     "write_captures",
 ]

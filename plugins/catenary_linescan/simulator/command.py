@@ -1,4 +1,4 @@
-"""``catenary simulate``: record a simulated run with its ground truth (and captures)."""
+"""What ``catenary simulate`` does: record a simulated run with its ground truth (and captures)."""
 
 from __future__ import annotations
 
@@ -14,68 +14,12 @@ from .run import record_run
 from .settings import DEMO_RIG_PATH, parse_settings
 from .simulation import Simulation
 
-__all__ = ["simulate"]
+__all__ = ["simulate_run"]
 
 
-@click.command("simulate")
-@click.argument("out", type=click.Path(path_type=Path, dir_okay=False))
-@click.option(
-    "--rig",
-    "rig_path",
-    type=click.Path(path_type=Path, dir_okay=False),
-    default=DEMO_RIG_PATH,
-    show_default="the demo rig, calibration/demo-rig.sim.toml",
-    help="Simulated rig (TOML: vehicle, cameras, lamps).",
-)
-@click.option("--length-m", type=float, default=300.0, show_default=True, help="Run length.")
-@click.option(
-    "--seed",
-    type=int,
-    default=0,
-    show_default=True,
-    help="Motion, encoder errors and noise; the scene too, without --scene-seed.",
-)
-@click.option(
-    "--scene-seed",
-    type=int,
-    default=None,
-    help="Scene alone (masts, wires, wear); default: --seed. One scene seed with different "
-    "seeds: the same line under different runs.",
-)
-@click.option(
-    "--lighting",
-    type=click.Choice(["night", "day-filter", "day-white"]),
-    default="night",
-    show_default=True,
-    help="Night (rig lamps), day with blue strobe + band-pass filter, or day with white lamps.",
-)
-@click.option("--overlap/--no-overlap", default=True, show_default=True, help="An overlap mid-run.")
-@click.option("--sun-blind", metavar="CAMERA", help="Blind CAMERA by the sun for a stretch.")
-@click.option(
-    "--captures",
-    "captures_path",
-    type=click.Path(path_type=Path, dir_okay=False),
-    help="Also write calibration captures of the rig (and their truth) here.",
-)
-@click.option("--speed-kmh", type=float, default=60.0, show_default=True)
-@click.option("--scan-rate-hz", type=float, default=1000.0, show_default=True)
-@click.option(
-    "--direction",
-    type=click.Choice(["increasing", "decreasing"]),
-    default="increasing",
-    show_default=True,
-)
-@click.option("--wire-type", default="CTA120", show_default=True)
-@click.option(
-    "--curve-radius-m",
-    type=float,
-    default=None,
-    help="0: straight; > 0: a curve over the second half; default: the seed decides.",
-)
-@click.option("--overwrite", is_flag=True, help="Replace existing output files.")
-def simulate(
+def simulate_run(
     out: Path,
-    rig_path: Path,
+    rig_path: Path | None,
     length_m: float,
     seed: int,
     scene_seed: int | None,
@@ -90,13 +34,10 @@ def simulate(
     curve_radius_m: float | None,
     overwrite: bool,
 ) -> None:
-    """Simulate a recorded run OUT.h5 of the rig over a generated section of line.
-
-    Writes OUT.h5 (FORMATS.md run), OUT.truth.h5 (ground truth) and OUT.masts.csv (mast
-    register) side by side.
-    """
+    """Simulate a recorded run ``out`` (with its truth and mast register beside it) of the rig
+    at ``rig_path`` (None: the demo rig), and its calibration captures at ``captures_path``."""
     settings: dict[str, Any] = {
-        "rig": rig_path,
+        "rig": rig_path or DEMO_RIG_PATH,
         "length_m": length_m,
         "seed": seed,
         "scene_seed": scene_seed,

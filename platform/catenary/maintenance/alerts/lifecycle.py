@@ -14,11 +14,11 @@ from sqlalchemy import (
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import Session, joinedload
 
+from catenary.domain import ALERT_STATUSES
 from catenary.errors import UserError
 from catenary.limits import LEVELS
 from catenary.storage.database import session_scope
 from catenary.storage.models import (
-    ALERT_STATUSES,
     NAME_LENGTH,
     Alert,
     Line,

@@ -22,7 +22,7 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import Session, aliased
 
-from catenary.maintenance.actions import REPAIR_KINDS
+from catenary.domain import REPAIR_KINDS
 from catenary.maintenance.alerts.rules import LOCAL, SECTION
 from catenary.maintenance.forecast import (
     WearFit,
