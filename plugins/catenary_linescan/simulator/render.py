@@ -318,13 +318,13 @@ def _layer_window(
 def render_electrons(
     optics: CameraOptics,
     layers: Sequence[Layer],
-    background_e: FloatArray,
+    background_e: NDArray[np.floating],
     lighting: Lighting,
     *,
     subsamples: int = DEFAULT_SUBSAMPLES,
     blur: bool = True,
     footprints: Sequence[LayerFootprint] | None = None,
-) -> FloatArray:
+) -> NDArray[np.float32]:
     """Electrons per pixel ``[n, W]`` (float32) of one camera for a block of scans.
 
     Parameters
@@ -373,7 +373,9 @@ def render_electrons(
     return out
 
 
-def sky_e(optics: CameraOptics, sky: Sky, distance_m: FloatArray, knots: int = 65) -> FloatArray:
+def sky_e(
+    optics: CameraOptics, sky: Sky, distance_m: FloatArray, knots: int = 65
+) -> NDArray[np.float32]:
     """Sky radiance ``[n, W]`` (float32) along each pixel's ray for scans at ``distance_m``.
 
     The sky is smooth: it is evaluated at ``knots`` angles across the line and interpolated.

@@ -213,7 +213,9 @@ class SimRig:
         return {camera.name: camera.nominal_model() for camera in self.cameras}
 
 
-def _number(table: Mapping[str, Any], key: str, path: object, where: str, kinds: tuple) -> Any:
+def _number(
+    table: Mapping[str, Any], key: str, path: object, where: str, kinds: tuple[type, ...]
+) -> Any:
     if key not in table:
         raise FormatError(path, f"missing key {where}{key}")
     value = table[key]

@@ -99,6 +99,6 @@ def expose(
     signal += np.float32(camera.black_level_dn)
     np.rint(signal, out=signal)
     np.clip(signal, 0, camera.max_dn, out=signal)
-    dn = signal
-    dtype = np.uint8 if camera.bit_depth <= 8 else np.uint16
-    return dn.astype(dtype)
+    if camera.bit_depth <= 8:
+        return signal.astype(np.uint8)
+    return signal.astype(np.uint16)

@@ -288,18 +288,18 @@ class Simulation:
             lines[cam.name] = expose(
                 electrons, cam, rng, prnu=self.prnu[cam.name], shot_noise=self.settings.shot_noise
             )
-            truth = CameraTruth(
+            camera_truth = CameraTruth(
                 optics.model.project(x_roof, z_roof), nan.copy(), nan.copy(), nan.copy(), nan.copy()
             )
             for m, i in wire_layer.items():
                 rows = layers[i].rows
                 fp = prints[i]
-                truth.left_px[rows, m] = fp.left
-                truth.right_px[rows, m] = fp.right
+                camera_truth.left_px[rows, m] = fp.left
+                camera_truth.right_px[rows, m] = fp.right
                 if self.scene.wires[m].contact:
-                    truth.face_left_px[rows, m] = fp.face_left
-                    truth.face_right_px[rows, m] = fp.face_right
-            cameras[cam.name] = truth
+                    camera_truth.face_left_px[rows, m] = fp.face_left
+                    camera_truth.face_right_px[rows, m] = fp.face_right
+            cameras[cam.name] = camera_truth
 
         contact = np.array([w.contact for w in self.scene.wires])[None, :]
         dims = self.scene.wire_type
