@@ -15,9 +15,9 @@ import pytest
 from click.testing import CliRunner, Result
 
 from catenary.cli import cli
+from catenary.cli.record import parse_options
 from catenary.domain import CameraLines, RunHeader, ScanBlock, VehicleSamples
 from catenary.errors import UserError
-from catenary.cli.record import parse_options
 from catenary.measurement.recording import record_run
 from catenary.measurement.runfile import RunFileWarning, open_run
 from catenary.plugins import PluginRegistry, hookimpl

@@ -14,9 +14,9 @@ import h5py
 import numpy as np
 import pytest
 
-from catenary.measurement import runfile
 from catenary.domain import ScanBlock
 from catenary.errors import FormatError, UserError
+from catenary.measurement import runfile
 from catenary.measurement.runfile import (
     RunFile,
     RunFileReader,
