@@ -50,7 +50,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from catenary.domain import FloatArray, VehicleGeometry
+from catenary.arrays import FloatArray
+from catenary.domain import VehicleGeometry
 from catenary.errors import FormatError, UserError
 from catenary.measurement.vehicle import parse_vehicle_geometry
 from catenary_linescan.camera import LineScanCamera, camera_from_pose

@@ -50,11 +50,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from catenary.arrays import BoolArray, FloatArray, IndexArray
 from catenary.errors import UserError
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.intp]
-BoolArray = NDArray[np.bool_]
 
 __all__ = [
     "Fittings",
@@ -270,7 +267,7 @@ class Fittings:
     """
 
     kind: NDArray[np.str_]
-    wire: IntArray
+    wire: IndexArray
     chainage_m: FloatArray
     y_mm: FloatArray
     h_mm: FloatArray
@@ -278,13 +275,13 @@ class Fittings:
     half_height_mm: FloatArray
     angle_rad: FloatArray
     reach_mm: FloatArray
-    curved: IntArray
+    curved: IndexArray
 
     @property
     def count(self) -> int:
         return int(self.chainage_m.shape[0])
 
-    def near(self, low_m: float, high_m: float) -> IntArray:
+    def near(self, low_m: float, high_m: float) -> IndexArray:
         """Indices of fittings that any scan in ``[low_m, high_m]`` may cut."""
         reach = float(np.max(self.reach_mm, initial=0.0)) / 1000.0
         first = int(np.searchsorted(self.chainage_m, low_m - reach, side="left"))

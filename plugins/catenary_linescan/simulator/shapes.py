@@ -26,9 +26,8 @@ from dataclasses import Field, dataclass, fields, replace
 from typing import Any, ClassVar, Self
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from catenary.arrays import FloatArray, IndexArray
 
 __all__ = ["Bar", "Hit", "WireSection"]
 
@@ -92,7 +91,7 @@ class _Batch:
     centre_x_mm: FloatArray
     angle_rad: FloatArray
 
-    def take(self, rows: NDArray[np.intp]) -> Self:
+    def take(self, rows: IndexArray) -> Self:
         """The shapes of the given rows (an index array into ``[r]``)."""
         taken = replace(self, **{f.name: getattr(self, f.name)[rows] for f in fields(self)})
         cached = self.__dict__.get("_rotation")

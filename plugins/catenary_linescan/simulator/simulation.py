@@ -23,8 +23,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from catenary.arrays import BoolArray, FloatArray, UInt8Array, UInt16Array
 from catenary.domain import RunHeader, VehicleSamples
 from catenary.measurement.vehicle import track_to_roof
 
@@ -36,9 +36,6 @@ from .scene import Scene, generate_scene
 from .sensor import expose, prnu_map
 from .settings import SimulationSettings
 from .shapes import Bar, WireSection
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 __all__ = ["CameraTruth", "Chunk", "ChunkTruth", "Simulation"]
 
@@ -100,7 +97,7 @@ class Chunk:
     first_scan: int
     time_s: FloatArray
     position_m: FloatArray
-    lines: dict[str, NDArray[np.uint8] | NDArray[np.uint16]]
+    lines: dict[str, UInt8Array | UInt16Array]
     sensors: SensorSamples  # the samples this chunk contributes to a recording
     vehicle: VehicleSamples  # the noisy sensors interpolated to the scan times
     truth: ChunkTruth
@@ -260,7 +257,7 @@ class Simulation:
         layers += self._fitting_layers(chainage, left, right, lateral, roll)
 
         glare = self._glare(distance)
-        lines: dict[str, NDArray[np.uint8] | NDArray[np.uint16]] = {}
+        lines: dict[str, UInt8Array | UInt16Array] = {}
         cameras: dict[str, CameraTruth] = {}
         nan = np.full(present.shape, np.nan)
         for number, cam in enumerate(self.rig.cameras):
