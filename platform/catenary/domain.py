@@ -9,10 +9,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
+from catenary.arrays import BoolArray, FloatArray, IntArray, UInt8Array, UInt16Array
 
 DEFAULT_BLOCK_SCANS = 1024
 """Scans per block when a source or reader is not told otherwise."""
@@ -58,7 +56,7 @@ class VehicleSamples:
 class CameraLines:
     """One camera's lines for a block of scans: ``lines`` is ``[n, W]`` uint8 or uint16."""
 
-    lines: NDArray[np.uint8] | NDArray[np.uint16]
+    lines: UInt8Array | UInt16Array
     bit_depth: int
 
 
@@ -110,12 +108,12 @@ class WireObservations:
     triangulation's residual.
     """
 
-    scan: NDArray[np.int64]
-    wire: NDArray[np.int64]
+    scan: IntArray
+    wire: IntArray
     x_roof_mm: FloatArray
     z_roof_mm: FloatArray
     wear_width_mm: FloatArray
-    cameras: NDArray[np.int64]
+    cameras: IntArray
     reprojection_rms_px: FloatArray
 
     @property

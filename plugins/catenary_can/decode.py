@@ -72,9 +72,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
-from catenary.domain import BoolArray, FloatArray, VehicleSamples
+from catenary.arrays import BoolArray, FloatArray, IntArray, UInt8Array
+from catenary.domain import VehicleSamples
 
 __all__ = [
     "CHANNELS",
@@ -105,9 +105,6 @@ __all__ = [
     "stuck_verdicts",
     "unwrap_counts",
 ]
-
-IntArray = NDArray[np.int64]
-UInt8Array = NDArray[np.uint8]
 
 CHANNELS = ("left_mm", "right_mm", "lateral_mm")
 

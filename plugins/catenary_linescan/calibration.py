@@ -15,9 +15,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy import optimize, stats
 
+from catenary.arrays import BoolArray, FloatArray, IndexArray
 from catenary.errors import UserError
 
 from .camera import LineScanCamera, camera_from_pose
@@ -30,9 +31,6 @@ __all__ = [
     "direct_linear_transform",
     "resolution_table_from_camera",
 ]
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 MIN_POINTS = 6
 """Fewest calibration points accepted for one camera (5 parameters, plus one to check)."""
@@ -498,7 +496,7 @@ class ResolutionTable:
         return np.asarray(np.where(np.isnan(x) | np.isnan(z), np.nan, result), np.float64)
 
 
-def _cell(grid: FloatArray, values: FloatArray) -> tuple[NDArray[np.intp], FloatArray]:
+def _cell(grid: FloatArray, values: FloatArray) -> tuple[IndexArray, FloatArray]:
     """Index of the grid cell holding each value and the fraction across it (any real)."""
     if grid.shape[0] == 1:
         return np.zeros(values.shape, dtype=np.intp), np.zeros(values.shape)
@@ -507,7 +505,7 @@ def _cell(grid: FloatArray, values: FloatArray) -> tuple[NDArray[np.intp], Float
     return index, np.nan_to_num(fraction)
 
 
-def _nearest(grid: FloatArray, values: FloatArray) -> NDArray[np.intp]:
+def _nearest(grid: FloatArray, values: FloatArray) -> IndexArray:
     if grid.shape[0] == 1:
         return np.zeros(values.shape, dtype=np.intp)
     index, fraction = _cell(grid, values)

@@ -37,11 +37,11 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from catenary.arrays import BoolArray, FloatArray
 
 __all__ = ["LineScanCamera", "camera_from_pose"]
-
-FloatArray = NDArray[np.float64]
 
 _NEWTON_MAX_ITERATIONS = 50
 _NEWTON_TOLERANCE_PX = 1e-10
@@ -355,7 +355,7 @@ class LineScanCamera:
         with np.errstate(divide="ignore"):
             return np.asarray(1.0 / np.abs(du_dx), dtype=np.float64)
 
-    def in_view(self, x_mm: ArrayLike, z_mm: ArrayLike) -> NDArray[np.bool_]:
+    def in_view(self, x_mm: ArrayLike, z_mm: ArrayLike) -> BoolArray:
         """Whether points are in front of the camera and image on the line [bool].
 
         Parameters

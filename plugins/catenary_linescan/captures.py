@@ -29,6 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
+from catenary.arrays import BoolArray, FloatArray, IntArray
 from catenary.domain import CameraLines
 from catenary.errors import FormatError, UserError
 
@@ -52,9 +53,6 @@ __all__ = [
     "write_capture",
     "write_points_csv",
 ]
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 CAPTURE_FORMAT = "catenary-calibration"
 CAPTURE_FORMAT_VERSION = 1
@@ -449,7 +447,7 @@ def write_points_csv(path: str | os.PathLike[str], points: CalibrationPoints) ->
 # -- measuring the targets in a line ------------------------------------------------------------
 
 
-def _runs(mask: NDArray[np.bool_]) -> tuple[IntArray, IntArray]:
+def _runs(mask: BoolArray) -> tuple[IntArray, IntArray]:
     """Starts and (exclusive) ends of the runs of True in a 1-D mask."""
     padded = np.concatenate([[False], mask, [False]])
     change = np.flatnonzero(padded[1:] != padded[:-1])

@@ -130,7 +130,7 @@ def simulate(**options: Any) -> None:
 @click.option("--length-m", type=float, default=300.0, show_default=True, help="Run length.")
 @click.option("--seed", type=int, default=7, show_default=True, help="Scene, motion and noise.")
 @pass_command_context
-def demo(context: CommandContext, **options: Any) -> None:
+def demo(context: CommandContext, /, **options: Any) -> None:
     """Simulate a run on the demo rig, calibrate the rig, process the run, write its reports."""
     from catenary_linescan.demo import run_demo
 

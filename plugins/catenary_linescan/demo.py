@@ -78,8 +78,8 @@ def run_demo(context: CommandContext, out: Path, length_m: float, seed: int) -> 
         migrate.upgrade(engine)
     masts = run.with_suffix(".masts.csv")
     alerting = run_alerting(settings, registry, policy)
-    request = ProcessRequest(run_path=run, rig_path=rig_path, register_path=masts)
-    result = process_run(request, settings, registry)
+    process_request = ProcessRequest(run_path=run, rig_path=rig_path, register_path=masts)
+    result = process_run(process_request, settings, registry)
     with context.database() as engine:
         alerts = evaluate_stored_run(alerting, engine, settings, registry, result.run_id)
     for text in [*result.summary_lines(), *run_alerts_lines(alerts)]:

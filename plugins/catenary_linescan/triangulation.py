@@ -11,14 +11,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
+
+from catenary.arrays import FloatArray, IntArray
 
 from .camera import LineScanCamera
 
 __all__ = ["TriangulationResult", "triangulate", "triangulate_pair"]
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 # Below this reciprocal condition number (det / trace²) of the 2x2 normal matrix the rays are
 # taken as parallel and the point as undetermined.

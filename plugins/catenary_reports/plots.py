@@ -25,6 +25,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from numpy.typing import NDArray
 
+from catenary.arrays import FloatArray, IntArray
+
 __all__ = [
     "LEVEL_COLOURS",
     "PLOT_COLUMNS",
@@ -41,8 +43,6 @@ __all__ = [
     "svg",
     "wire_colour",
 ]
-
-FloatArray = NDArray[np.float64]
 
 PLOT_COLUMNS = 1100
 """Pixel columns of a plot's axes at the figure's width (12.4 in at 100 dpi, less margins)."""
@@ -306,7 +306,7 @@ def profile_figure(
 
 
 def histogram_figure(
-    edges: FloatArray, counts: NDArray[np.int64], total: int, tolerance_mm: float, title: str
+    edges: FloatArray, counts: IntArray, total: int, tolerance_mm: float, title: str
 ) -> Figure:
     """Bars of ``counts`` (share of ``total`` points) per bin of ``edges`` [mm], with the
     ``±tolerance_mm`` band marked."""

@@ -20,10 +20,11 @@ from dataclasses import dataclass
 from datetime import datetime
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from catenary.arrays import BoolArray
 from catenary.domain import MAINTENANCE_KINDS, REPAIR_KINDS
 from catenary.errors import UserError
 from catenary.storage.models import Alert, MaintenanceAction, Track
@@ -42,18 +43,14 @@ COVER_TOLERANCE_M = 0.5
 register agree to a few decimetres)."""
 
 
-def touches(
-    from_m: ArrayLike, to_m: ArrayLike, start_m: ArrayLike, end_m: ArrayLike
-) -> NDArray[np.bool_]:
+def touches(from_m: ArrayLike, to_m: ArrayLike, start_m: ArrayLike, end_m: ArrayLike) -> BoolArray:
     """Whether actions ``[from_m, to_m]`` touch spans ``[start_m, end_m]`` (broadcast) [m]."""
     a, b = np.asarray(from_m, dtype=np.float64), np.asarray(to_m, dtype=np.float64)
     start, end = np.asarray(start_m, dtype=np.float64), np.asarray(end_m, dtype=np.float64)
     return np.asarray((a < end - COVER_TOLERANCE_M) & (b > start + COVER_TOLERANCE_M))
 
 
-def contains(
-    from_m: ArrayLike, to_m: ArrayLike, start_m: ArrayLike, end_m: ArrayLike
-) -> NDArray[np.bool_]:
+def contains(from_m: ArrayLike, to_m: ArrayLike, start_m: ArrayLike, end_m: ArrayLike) -> BoolArray:
     """Whether actions ``[from_m, to_m]`` contain stretches ``[start_m, end_m]`` (broadcast)."""
     a, b = np.asarray(from_m, dtype=np.float64), np.asarray(to_m, dtype=np.float64)
     start, end = np.asarray(start_m, dtype=np.float64), np.asarray(end_m, dtype=np.float64)

@@ -19,8 +19,10 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy import stats
+
+from catenary.arrays import FloatArray, IntArray
 
 __all__ = [
     "CONFIDENCE",
@@ -34,9 +36,6 @@ __all__ = [
     "reach_times",
     "years_since_epoch",
 ]
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 EPOCH = datetime(2000, 1, 1, tzinfo=UTC)
 SECONDS_PER_YEAR = 365.25 * 86_400.0

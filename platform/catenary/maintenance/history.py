@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from catenary.arrays import FloatArray, IntArray
 from catenary.maintenance.actions import touches
 from catenary.maintenance.forecast import WearFit, fit_histories
 
@@ -39,10 +40,6 @@ __all__ = [
     "span_histories",
     "wire_positions",
 ]
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 SECTION_COVERAGE = 0.9
 """Fraction of an anchor section's length a run must measure for its average to count."""

@@ -30,9 +30,9 @@ from __future__ import annotations
 from dataclasses import dataclass, fields, replace
 
 import numpy as np
-from numpy.typing import NDArray
 
-from catenary.domain import FloatArray, ScanBlock, VehicleGeometry, WireObservations
+from catenary.arrays import BoolArray, FloatArray, IndexArray, IntArray
+from catenary.domain import ScanBlock, VehicleGeometry, WireObservations
 from catenary.measurement.vehicle import roof_to_track
 from catenary.measurement.wear import (
     DEFAULT_WINDOW_M,
@@ -43,9 +43,6 @@ from catenary.measurement.wear import (
 )
 
 __all__ = ["VEHICLE_HISTORY_M", "MeasurementChain", "TrackSamples"]
-
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 VEHICLE_HISTORY_M = 200.0
 """Track behind the latest block whose scans' sensor values are kept [m]: far more than any
@@ -86,7 +83,7 @@ class TrackSamples:
             **{f.name: np.concatenate([getattr(p, f.name) for p in parts]) for f in fields(cls)}
         )
 
-    def take(self, index: NDArray[np.intp] | BoolArray) -> TrackSamples:
+    def take(self, index: IndexArray | BoolArray) -> TrackSamples:
         return TrackSamples(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
 
 

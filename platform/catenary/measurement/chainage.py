@@ -71,8 +71,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy import ndimage
+
+from catenary.arrays import BoolArray, FloatArray, IndexArray
 
 __all__ = [
     "BASELINE_OFFSET_M",
@@ -95,10 +97,6 @@ __all__ = [
     "direction_sign",
     "span_index",
 ]
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.intp]
-BoolArray = NDArray[np.bool_]
 
 BIN_M = 0.25
 """Length of track of one bin of moments [m]: where fit windows may begin and end (the
@@ -232,7 +230,7 @@ def _prefix_sums(moments: FloatArray) -> FloatArray:
 
 
 def _fit_lines(
-    prefix: FloatArray, first: IntArray, stop: IntArray, at_m: FloatArray, fill: float
+    prefix: FloatArray, first: IndexArray, stop: IndexArray, at_m: FloatArray, fill: float
 ) -> _Lines:
     """Lines over bins ``[first, stop)`` (clipped to the buffer), evaluated at ``at_m``.
 
@@ -260,7 +258,7 @@ def _fit_lines(
     return _Lines(usable, slope, value, var_slope)
 
 
-def _kink_edges(prefix: FloatArray, lo: int, hi: int) -> IntArray:
+def _kink_edges(prefix: FloatArray, lo: int, hi: int) -> IndexArray:
     """Edges in ``[lo, hi)`` of the buffer that are registration points (module docstring).
 
     Decisions use bins within ``_MARGIN`` of the edge only.
@@ -323,7 +321,7 @@ def _crossing(left: FloatArray, right: FloatArray) -> float:
     return a / q if q != 0.0 else math.nan
 
 
-def _refine(moments: FloatArray, edges: IntArray) -> FloatArray:
+def _refine(moments: FloatArray, edges: IndexArray) -> FloatArray:
     """Where the quadratics fitted on either side of each edge cross, from the buffer's first
     edge [m]; NaN where they give no crossing near the edge (no kink there)."""
     result = np.full(edges.shape[0], np.nan)
@@ -553,7 +551,7 @@ class ChainageAlignment:
         return np.asarray(self.offset_m + self.direction_sign * self.scale * p, dtype=np.float64)
 
 
-def _nearest(sorted_values: FloatArray, x: FloatArray) -> IntArray:
+def _nearest(sorted_values: FloatArray, x: FloatArray) -> IndexArray:
     """Index of the nearest of ``sorted_values`` (non-empty) to each ``x``."""
     upper = np.clip(np.searchsorted(sorted_values, x), 1, max(sorted_values.shape[0] - 1, 1))
     lower = upper - 1
@@ -633,7 +631,7 @@ def _robust_fit(
     return offset, scale, keep
 
 
-def _one_per_mast(mast: IntArray, residual: FloatArray) -> BoolArray:
+def _one_per_mast(mast: IndexArray, residual: FloatArray) -> BoolArray:
     """Of turning points matched to the same mast, the one closest to it."""
     order = np.lexsort((np.abs(residual), mast))
     first = np.concatenate([[True], np.diff(mast[order]) != 0])
@@ -784,7 +782,7 @@ def align_to_register(
 # -- spans ---------------------------------------------------------------------------------
 
 
-def span_index(chainage_m: ArrayLike, boundaries_m: ArrayLike) -> IntArray:
+def span_index(chainage_m: ArrayLike, boundaries_m: ArrayLike) -> IndexArray:
     """The span of each chainage: ``i`` with ``boundaries[i] <= c < boundaries[i + 1]``.
 
     Parameters

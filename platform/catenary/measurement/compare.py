@@ -36,8 +36,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from catenary.arrays import FloatArray, IndexArray, IntArray
 from catenary.errors import UserError
 
 __all__ = [
@@ -48,9 +49,6 @@ __all__ = [
     "RunProfile",
     "compare_profiles",
 ]
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 MATCH_STAGGER_MM = 50.0
 """Largest median stagger difference [mm] of two wires that run along each other. Wires of an
@@ -203,7 +201,7 @@ class Comparison:
 
     def histogram(
         self, bin_mm: float | None = None, half_width_mm: float | None = None
-    ) -> tuple[FloatArray, NDArray[np.int64]]:
+    ) -> tuple[FloatArray, IntArray]:
         """Histogram of ``B - A`` in bins of ``bin_mm`` (default ``self.bin_mm``) [mm].
 
         Parameters
@@ -331,7 +329,7 @@ def _common(a: _Wire, b: _Wire, shift_m: float) -> tuple[float, float]:
     return max(a.start_m, b.start_m - shift_m), min(a.end_m, b.end_m - shift_m)
 
 
-def _thin(count: int, most: int) -> NDArray[np.intp]:
+def _thin(count: int, most: int) -> IndexArray:
     """At most ``most`` indices spread evenly over ``range(count)``."""
     if count <= most:
         return np.arange(count, dtype=np.intp)

@@ -71,17 +71,10 @@ from typing import Any, Final, Self
 
 import h5py
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from catenary.domain import (
-    DEFAULT_BLOCK_SCANS,
-    BoolArray,
-    CameraLines,
-    FloatArray,
-    RunHeader,
-    ScanBlock,
-    VehicleSamples,
-)
+from catenary.arrays import BoolArray, FloatArray, UInt8Array, UInt16Array
+from catenary.domain import DEFAULT_BLOCK_SCANS, CameraLines, RunHeader, ScanBlock, VehicleSamples
 from catenary.errors import FormatError, UserError
 
 __all__ = [
@@ -120,8 +113,6 @@ _CACHE_CAP_BYTES: Final = 256 * 1024 * 1024
 _SCAN_SERIES: Final = ("position_m", "time_s")
 _VEHICLE_SERIES: Final = ("time_s", "left_mm", "right_mm", "lateral_mm")
 
-UInt8Array = NDArray[np.uint8]
-UInt16Array = NDArray[np.uint16]
 LinesArray = UInt8Array | UInt16Array
 _Columns = Mapping[str, np.ndarray[Any, Any]]
 

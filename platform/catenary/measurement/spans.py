@@ -15,9 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 import pyarrow as pa
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
-from catenary.domain import FloatArray, TrackRegister
+from catenary.arrays import FloatArray, IntArray
+from catenary.domain import TrackRegister
 from catenary.measurement.chainage import span_index
 
 __all__ = [
@@ -28,8 +29,6 @@ __all__ = [
     "SpanStatistics",
     "span_table",
 ]
-
-IntArray = NDArray[np.int64]
 
 SPAN_COLUMNS = (
     "span",

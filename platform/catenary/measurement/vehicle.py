@@ -31,7 +31,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import ArrayLike
 
-from catenary.domain import FloatArray, VehicleGeometry
+from catenary.arrays import FloatArray
+from catenary.domain import VehicleGeometry
 from catenary.errors import FormatError, UserError
 
 __all__ = [

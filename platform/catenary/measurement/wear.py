@@ -47,8 +47,10 @@ from collections.abc import Callable
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 from scipy import ndimage
+
+from catenary.arrays import FloatArray, IndexArray
 
 __all__ = [
     "DEFAULT_WINDOW_M",
@@ -61,9 +63,6 @@ __all__ = [
     "stagger_angle_by_wire_rad",
     "stagger_angle_rad",
 ]
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.intp]
 
 DEFAULT_WINDOW_M = 2.0
 """Length of track over which the stagger gradient is fitted [m]. Long enough to average the
@@ -341,7 +340,7 @@ def screened_wear_width_mm(position_m: ArrayLike, width_mm: ArrayLike) -> FloatA
 
 def _rolling_median(
     position: FloatArray, values: FloatArray, at: FloatArray, half_window_m: float
-) -> tuple[FloatArray, IntArray]:
+) -> tuple[FloatArray, IndexArray]:
     """Median ``(k,)`` of the ``values`` (``(m,)``, ``m >= 1``, sorted by ``position``)
     within ``half_window_m`` of each of the sorted positions ``at`` ``(k,)``, and how many
     there are. A window holds at most ``_SCREEN_MAX_SIDE`` values on either side of index

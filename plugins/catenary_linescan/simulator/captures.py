@@ -47,8 +47,8 @@ from pathlib import Path
 
 import h5py
 import numpy as np
-from numpy.typing import NDArray
 
+from catenary.arrays import FloatArray
 from catenary.domain import CameraLines
 from catenary_linescan.captures import CalibrationCapture, write_capture
 
@@ -58,8 +58,6 @@ from .render import Layer, Lighting, footprint, render_electrons
 from .rig import SimRig
 from .sensor import expose, prnu_map
 from .shapes import Bar, WireSection
-
-FloatArray = NDArray[np.float64]
 
 __all__ = [
     "CAPTURE_TRUTH_FORMAT",

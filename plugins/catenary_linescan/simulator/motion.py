@@ -31,12 +31,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from catenary.arrays import FloatArray, IntArray
 from catenary.domain import VehicleGeometry
 from catenary.errors import UserError
-
-FloatArray = NDArray[np.float64]
 
 __all__ = ["Motion", "MotionParams", "Pose", "SensorSamples"]
 
@@ -98,7 +96,7 @@ class Pose:
 class SensorSamples:
     """Displacement sensor samples ``[k]`` on the scan clock (noise included)."""
 
-    index: NDArray[np.int64]
+    index: IntArray
     time_s: FloatArray
     left_mm: FloatArray
     right_mm: FloatArray
@@ -252,7 +250,7 @@ class Motion:
         bounce = self._bounce(t)
         return Pose(roll, lateral, bounce)
 
-    def sensor_time_s(self, index: NDArray[np.int64]) -> FloatArray:
+    def sensor_time_s(self, index: IntArray) -> FloatArray:
         """Time [s] of sensor sample ``index`` (sample 0 just before or at the first scan)."""
         return (
             self.sensor_phase_s + np.asarray(index, dtype=np.float64) / self.params.sensor_rate_hz

@@ -18,14 +18,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy import special
 
+from catenary.arrays import FloatArray
 from catenary_linescan.camera import LineScanCamera
 
 from .rig import SimCamera
-
-FloatArray = NDArray[np.float64]
 
 __all__ = ["CameraOptics"]
 

@@ -28,11 +28,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+
+from catenary.arrays import FloatArray
 
 from .rig import Lamp
-
-FloatArray = NDArray[np.float64]
 
 __all__ = [
     "CONDITIONS",

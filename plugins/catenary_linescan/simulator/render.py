@@ -42,13 +42,12 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import fft as sfft
 
+from catenary.arrays import Float32Array, FloatArray, IndexArray
+
 from .optics import CameraOptics
 from .radiometry import Material, Sky, surface_radiance_e
 from .rig import Lamp
 from .shapes import Bar, WireSection
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.intp]
 
 __all__ = ["Layer", "LayerFootprint", "Lighting", "footprint", "render_electrons", "sky_e"]
 
@@ -83,7 +82,7 @@ class Layer:
     """
 
     name: str
-    rows: IntArray
+    rows: IndexArray
     shape: WireSection | Bar
     material: Material
     face_material: Material | None = None
@@ -203,7 +202,7 @@ def _layer_window(
     subsamples: int,
     blur: bool,
     lighting: Lighting,
-) -> tuple[IntArray, IntArray, FloatArray, FloatArray] | None:
+) -> tuple[IndexArray, IndexArray, FloatArray, FloatArray] | None:
     """Coverage and premultiplied radiance of a layer on pixel windows.
 
     Returns ``(rows, first_col, alpha, colour)`` with ``alpha``/``colour`` ``[r, w]`` for
@@ -318,13 +317,13 @@ def _layer_window(
 def render_electrons(
     optics: CameraOptics,
     layers: Sequence[Layer],
-    background_e: FloatArray,
+    background_e: NDArray[np.floating],
     lighting: Lighting,
     *,
     subsamples: int = DEFAULT_SUBSAMPLES,
     blur: bool = True,
     footprints: Sequence[LayerFootprint] | None = None,
-) -> FloatArray:
+) -> Float32Array:
     """Electrons per pixel ``[n, W]`` (float32) of one camera for a block of scans.
 
     Parameters
@@ -373,7 +372,7 @@ def render_electrons(
     return out
 
 
-def sky_e(optics: CameraOptics, sky: Sky, distance_m: FloatArray, knots: int = 65) -> FloatArray:
+def sky_e(optics: CameraOptics, sky: Sky, distance_m: FloatArray, knots: int = 65) -> Float32Array:
     """Sky radiance ``[n, W]`` (float32) along each pixel's ray for scans at ``distance_m``.
 
     The sky is smooth: it is evaluated at ``knots`` angles across the line and interpolated.

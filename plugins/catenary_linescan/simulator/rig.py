@@ -50,7 +50,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from catenary.domain import FloatArray, VehicleGeometry
+from catenary.arrays import FloatArray
+from catenary.domain import VehicleGeometry
 from catenary.errors import FormatError, UserError
 from catenary.measurement.vehicle import parse_vehicle_geometry
 from catenary_linescan.camera import LineScanCamera, camera_from_pose
@@ -213,7 +214,9 @@ class SimRig:
         return {camera.name: camera.nominal_model() for camera in self.cameras}
 
 
-def _number(table: Mapping[str, Any], key: str, path: object, where: str, kinds: tuple) -> Any:
+def _number(
+    table: Mapping[str, Any], key: str, path: object, where: str, kinds: tuple[type, ...]
+) -> Any:
     if key not in table:
         raise FormatError(path, f"missing key {where}{key}")
     value = table[key]

@@ -50,11 +50,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from catenary.arrays import BoolArray, FloatArray, IndexArray
 from catenary.errors import UserError
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.intp]
-BoolArray = NDArray[np.bool_]
 
 __all__ = [
     "Fittings",
@@ -270,7 +267,7 @@ class Fittings:
     """
 
     kind: NDArray[np.str_]
-    wire: IntArray
+    wire: IndexArray
     chainage_m: FloatArray
     y_mm: FloatArray
     h_mm: FloatArray
@@ -278,13 +275,13 @@ class Fittings:
     half_height_mm: FloatArray
     angle_rad: FloatArray
     reach_mm: FloatArray
-    curved: IntArray
+    curved: IndexArray
 
     @property
     def count(self) -> int:
         return int(self.chainage_m.shape[0])
 
-    def near(self, low_m: float, high_m: float) -> IntArray:
+    def near(self, low_m: float, high_m: float) -> IndexArray:
         """Indices of fittings that any scan in ``[low_m, high_m]`` may cut."""
         reach = float(np.max(self.reach_mm, initial=0.0)) / 1000.0
         first = int(np.searchsorted(self.chainage_m, low_m - reach, side="left"))
@@ -361,7 +358,9 @@ def _mast_codes(chainages: FloatArray) -> list[str]:
     return codes
 
 
-def _hanging_points(support: FloatArray, spacing: tuple[float, float], rng) -> FloatArray:
+def _hanging_points(
+    support: FloatArray, spacing: tuple[float, float], rng: np.random.Generator
+) -> FloatArray:
     """Dropper chainages in every span: 4-5 m from the supports, 5-10 m apart."""
     points = []
     for c0, c1 in itertools.pairwise(support):
@@ -516,7 +515,18 @@ def generate_scene(params: SceneParams, seed: int) -> Scene:
     f_reach: list[float] = []
     f_curved: list[int] = []
 
-    def add(kind, wire, c, y, h, hw, hh, angle, reach, curved) -> None:
+    def add(
+        kind: str,
+        wire: int,
+        c: float,
+        y: float,
+        h: float,
+        hw: float,
+        hh: float,
+        angle: float,
+        reach: float,
+        curved: int,
+    ) -> None:
         kinds.append(kind)
         f_wire.append(wire)
         f_c.append(c)
@@ -548,7 +558,7 @@ def generate_scene(params: SceneParams, seed: int) -> Scene:
             axis=1,
         )
         spots = []
-        for i in idx:
+        for i in idx.tolist():
             if wire_lift[i] == 0.0 and i not in anchor:
                 amp = rng.uniform(0.3, 2.0) * (1.6 if mast_in_curve[i] else 1.0)
                 spots.append((support[i], amp, rng.uniform(1.0, 2.5)))
@@ -599,8 +609,8 @@ def generate_scene(params: SceneParams, seed: int) -> Scene:
         # droppers and their clamps
         _, y_cw, h_cw, _, _ = contact.evaluate(hanging)
         _, _, h_mw, _, _ = messenger.evaluate(hanging)
-        top = h_cw + dims.height_mm
-        for c, y, low, high in zip(hanging, y_cw, top, h_mw, strict=True):
+        top_cw = h_cw + dims.height_mm
+        for c, y, low, high in zip(hanging, y_cw, top_cw, h_mw, strict=True):
             add(
                 "dropper",
                 contact_id,
@@ -628,7 +638,7 @@ def generate_scene(params: SceneParams, seed: int) -> Scene:
                 0,
             )
         # steady arms, registration clamps and registration tubes
-        for i, reg in zip(idx, registered, strict=True):
+        for i, reg in zip(idx.tolist(), registered, strict=True):
             if not reg:
                 continue
             side = int(mast_side[i])

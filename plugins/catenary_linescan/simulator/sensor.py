@@ -31,6 +31,8 @@ import zlib
 import numpy as np
 from numpy.typing import NDArray
 
+from catenary.arrays import Float32Array, UInt8Array, UInt16Array
+
 from .rig import SimCamera
 
 __all__ = ["SHOT_NOISE", "SKEW_LIMIT", "expose", "prnu_map"]
@@ -40,7 +42,7 @@ SKEW_LIMIT = 0.02
 """Skewness of shot plus read noise above which the Poisson law is drawn exactly."""
 
 
-def prnu_map(camera: SimCamera) -> NDArray[np.float32]:
+def prnu_map(camera: SimCamera) -> Float32Array:
     """The camera's fixed per-pixel gain ``[W]`` (mean 1, spread ``camera.prnu``)."""
     rng = np.random.default_rng(zlib.crc32(f"prnu:{camera.name}".encode()))
     gain = 1.0 + camera.prnu * rng.standard_normal(camera.pixels)
@@ -52,9 +54,9 @@ def expose(
     camera: SimCamera,
     rng: np.random.Generator | None,
     *,
-    prnu: NDArray[np.float32] | None = None,
+    prnu: Float32Array | None = None,
     shot_noise: str = "poisson",
-) -> NDArray[np.uint8] | NDArray[np.uint16]:
+) -> UInt8Array | UInt16Array:
     """Grey levels ``[n, W]`` from the mean electrons ``[n, W]`` of each pixel.
 
     With ``rng`` None no noise is added (PRNU, saturation and quantisation still apply).
@@ -99,6 +101,6 @@ def expose(
     signal += np.float32(camera.black_level_dn)
     np.rint(signal, out=signal)
     np.clip(signal, 0, camera.max_dn, out=signal)
-    dn = signal
-    dtype = np.uint8 if camera.bit_depth <= 8 else np.uint16
-    return dn.astype(dtype)
+    if camera.bit_depth <= 8:
+        return signal.astype(np.uint8)
+    return signal.astype(np.uint16)

@@ -22,13 +22,12 @@ centre ``origin`` (shape ``(2,)``) along unit directions ``[r, m, 2]``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields, replace
-from typing import Self
+from dataclasses import Field, dataclass, fields, replace
+from typing import Any, ClassVar, Self
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from catenary.arrays import FloatArray, IndexArray
 
 __all__ = ["Bar", "Hit", "WireSection"]
 
@@ -46,7 +45,12 @@ class Hit:
 
 
 def _to_local(
-    centre_x: FloatArray, centre_z: FloatArray, c: FloatArray, s: FloatArray, x, z
+    centre_x: FloatArray,
+    centre_z: FloatArray,
+    c: FloatArray,
+    s: FloatArray,
+    x: FloatArray | float,
+    z: FloatArray | float,
 ) -> tuple[FloatArray, FloatArray]:
     """Roof-frame points to the local frame (rotate by -angle; ``c, s`` its cosine, sine)."""
     dx = x - centre_x
@@ -54,29 +58,42 @@ def _to_local(
     return dx * c + dz * s, -dx * s + dz * c
 
 
-def _dir_to_local(c: FloatArray, s: FloatArray, dx, dz) -> tuple[FloatArray, FloatArray]:
+def _dir_to_local(
+    c: FloatArray, s: FloatArray, dx: FloatArray, dz: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     return dx * c + dz * s, -dx * s + dz * c
 
 
 def _to_roof(
-    centre_x: FloatArray, centre_z: FloatArray, c: FloatArray, s: FloatArray, x, z
+    centre_x: FloatArray,
+    centre_z: FloatArray,
+    c: FloatArray,
+    s: FloatArray,
+    x: FloatArray,
+    z: FloatArray,
 ) -> tuple[FloatArray, FloatArray]:
     return centre_x + x * c - z * s, centre_z + x * s + z * c
 
 
-def _vec_to_roof(c: FloatArray, s: FloatArray, x, z) -> tuple[FloatArray, FloatArray]:
+def _vec_to_roof(
+    c: FloatArray, s: FloatArray, x: FloatArray, z: FloatArray
+) -> tuple[FloatArray, FloatArray]:
     return x * c - z * s, x * s + z * c
 
 
 class _Batch:
-    """Row selection and the rotation's cosine and sine, shared by the shape batches."""
+    """Row selection and the rotation's cosine and sine, shared by the shape batches.
 
-    def take(self, rows: NDArray[np.intp]) -> Self:
+    Each subclass is a frozen dataclass with (at least) these fields.
+    """
+
+    __dataclass_fields__: ClassVar[dict[str, Field[Any]]]
+    centre_x_mm: FloatArray
+    angle_rad: FloatArray
+
+    def take(self, rows: IndexArray) -> Self:
         """The shapes of the given rows (an index array into ``[r]``)."""
-        taken = replace(  # type: ignore[type-var]
-            self,  # type: ignore[arg-type]
-            **{f.name: getattr(self, f.name)[rows] for f in fields(self)},  # type: ignore[arg-type]
-        )
+        taken = replace(self, **{f.name: getattr(self, f.name)[rows] for f in fields(self)})
         cached = self.__dict__.get("_rotation")
         if cached is not None:
             object.__setattr__(taken, "_rotation", (cached[0][rows], cached[1][rows]))
@@ -84,13 +101,13 @@ class _Batch:
 
     @property
     def rows(self) -> int:
-        return int(self.centre_x_mm.shape[0])  # type: ignore[attr-defined]
+        return int(self.centre_x_mm.shape[0])
 
     def rotation(self) -> tuple[FloatArray, FloatArray]:
         """``(cos, sin)`` of ``angle_rad``, ``[r]`` each (computed once)."""
         cached = self.__dict__.get("_rotation")
         if cached is None:
-            angle = self.angle_rad  # type: ignore[attr-defined]
+            angle = self.angle_rad
             cached = (np.cos(angle), np.sin(angle))
             object.__setattr__(self, "_rotation", cached)
         return cached

@@ -23,8 +23,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from catenary.arrays import BoolArray, FloatArray, UInt8Array, UInt16Array
 from catenary.domain import RunHeader, VehicleSamples
 from catenary.measurement.vehicle import track_to_roof
 
@@ -36,9 +36,6 @@ from .scene import Scene, generate_scene
 from .sensor import expose, prnu_map
 from .settings import SimulationSettings
 from .shapes import Bar, WireSection
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 __all__ = ["CameraTruth", "Chunk", "ChunkTruth", "Simulation"]
 
@@ -100,7 +97,7 @@ class Chunk:
     first_scan: int
     time_s: FloatArray
     position_m: FloatArray
-    lines: dict[str, NDArray[np.uint8] | NDArray[np.uint16]]
+    lines: dict[str, UInt8Array | UInt16Array]
     sensors: SensorSamples  # the samples this chunk contributes to a recording
     vehicle: VehicleSamples  # the noisy sensors interpolated to the scan times
     truth: ChunkTruth
@@ -260,7 +257,7 @@ class Simulation:
         layers += self._fitting_layers(chainage, left, right, lateral, roll)
 
         glare = self._glare(distance)
-        lines: dict[str, NDArray[np.uint8] | NDArray[np.uint16]] = {}
+        lines: dict[str, UInt8Array | UInt16Array] = {}
         cameras: dict[str, CameraTruth] = {}
         nan = np.full(present.shape, np.nan)
         for number, cam in enumerate(self.rig.cameras):
@@ -288,18 +285,18 @@ class Simulation:
             lines[cam.name] = expose(
                 electrons, cam, rng, prnu=self.prnu[cam.name], shot_noise=self.settings.shot_noise
             )
-            truth = CameraTruth(
+            camera_truth = CameraTruth(
                 optics.model.project(x_roof, z_roof), nan.copy(), nan.copy(), nan.copy(), nan.copy()
             )
             for m, i in wire_layer.items():
                 rows = layers[i].rows
                 fp = prints[i]
-                truth.left_px[rows, m] = fp.left
-                truth.right_px[rows, m] = fp.right
+                camera_truth.left_px[rows, m] = fp.left
+                camera_truth.right_px[rows, m] = fp.right
                 if self.scene.wires[m].contact:
-                    truth.face_left_px[rows, m] = fp.face_left
-                    truth.face_right_px[rows, m] = fp.face_right
-            cameras[cam.name] = truth
+                    camera_truth.face_left_px[rows, m] = fp.face_left
+                    camera_truth.face_right_px[rows, m] = fp.face_right
+            cameras[cam.name] = camera_truth
 
         contact = np.array([w.contact for w in self.scene.wires])[None, :]
         dims = self.scene.wire_type

@@ -11,7 +11,6 @@ from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from numpy.typing import NDArray
 from sqlalchemy import (
     Integer,
     select,
@@ -22,6 +21,7 @@ from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import Session, aliased
 
+from catenary.arrays import BoolArray, FloatArray, IntArray
 from catenary.config import Settings
 from catenary.errors import UserError
 from catenary.limits import LEVELS, LimitPolicy, choose_policy
@@ -72,9 +72,6 @@ __all__ = [
     "run_alerts_lines",
 ]
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 RESOLVE_MARGIN_MM = 0.1
 """A threshold alert is resolved by a run only when its value is this far back above the

@@ -6,8 +6,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
 
+from catenary.arrays import BoolArray, FloatArray, IntArray
 from catenary.config import Settings
 from catenary.errors import UserError
 from catenary.limits import LimitPolicy, LimitRule, thresholds
@@ -24,9 +24,6 @@ __all__ = [
     "rules_of",
 ]
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 DEFAULT_HORIZON_DAYS = 365.0
 """Planning horizon of the forecasts without ``[maintenance] horizon_days``."""

@@ -22,6 +22,7 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import Session, aliased
 
+from catenary.arrays import FloatArray, IntArray
 from catenary.domain import REPAIR_KINDS
 from catenary.maintenance.alerts.rules import LOCAL, SECTION
 from catenary.maintenance.forecast import (
@@ -38,9 +39,6 @@ from catenary.storage.models import (
 )
 
 __all__ = ["TrackData", "Units", "history_keys", "match_units", "units_of"]
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 
 def _lookup(keys: IntArray, values: NDArray[np.generic]) -> IntArray:
