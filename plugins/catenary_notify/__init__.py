@@ -1,11 +1,10 @@
 """Built-in alert notifiers: ``email`` (SMTP) and ``webhook`` (a JSON POST).
 
 The core's delivery (``catenary.maintenance.notifications``) calls ``send(alert, settings)``
-with an alert's fields (``catenary.maintenance.notifications.alert_fields``) and a channel's
-settings
-(``[notifications.channels.settings]``); ``send`` returns once the alert is handed over and raises
-otherwise, so the core records the failure and retries later. Secrets never live in the config file:
-settings name the environment variables that hold them.
+with an alert's ``AlertRecord`` (``catenary.plugins``) and a channel's settings
+(``[notifications.channels.settings]``); ``send`` returns once the alert is handed over and
+raises otherwise, so the core records the failure and retries later. Secrets never live in the
+config file: settings name the environment variables that hold them.
 """
 
 from __future__ import annotations

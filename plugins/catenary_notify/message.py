@@ -2,50 +2,49 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
+from catenary.plugins import AlertRecord
 
 
-def mast_range(alert: Mapping[str, Any]) -> str:
+def mast_range(alert: AlertRecord) -> str:
     """``masts M1 to M2``, or the chainage when the alert has no masts."""
-    start, end = alert.get("mast_from"), alert.get("mast_to")
+    start, end = alert.mast_from, alert.mast_to
     if start is None and end is None:
-        return f"chainage {alert['start_chainage_m']:.1f} to {alert['end_chainage_m']:.1f} m"
+        return f"chainage {alert.start_chainage_m:.1f} to {alert.end_chainage_m:.1f} m"
     if start == end or end is None:
         return f"mast {start}"
     return f"masts {start} to {end}"
 
 
-def summary(alert: Mapping[str, Any]) -> str:
+def summary(alert: AlertRecord) -> str:
     """One line: level (and kind, if not a threshold crossed), where, value against threshold."""
-    level = str(alert["level"]).upper()
-    if alert["kind"] != "threshold":
-        level += f" ({alert['kind']})"
+    level = str(alert.level).upper()
+    if alert.kind != "threshold":
+        level += f" ({alert.kind})"
     return (
-        f"{level}: line {alert['line']} track {alert['track']}, {mast_range(alert)}, "
-        f"wire {alert['wire']}: {alert['value']:.3f} vs threshold {alert['threshold']:.3f} "
-        f"({alert['rule']})"
+        f"{level}: line {alert.line} track {alert.track}, {mast_range(alert)}, "
+        f"wire {alert.wire}: {alert.value:.3f} vs threshold {alert.threshold:.3f} "
+        f"({alert.rule})"
     )
 
 
-def body(alert: Mapping[str, Any]) -> str:
+def body(alert: AlertRecord) -> str:
     """The plain-text message: every field a maintenance planner needs, one a line."""
-    details = alert.get("details") or {}
+    details = alert.details
     rows = [
-        ("Level", alert["level"]),
-        ("Line", alert["line"]),
-        ("Track", alert["track"]),
-        ("Masts", f"{alert.get('mast_from') or '-'} to {alert.get('mast_to') or '-'}"),
+        ("Level", alert.level),
+        ("Line", alert.line),
+        ("Track", alert.track),
+        ("Masts", f"{alert.mast_from or '-'} to {alert.mast_to or '-'}"),
         (
             "Chainage",
-            f"{alert['start_chainage_m']:.1f} m to {alert['end_chainage_m']:.1f} m",
+            f"{alert.start_chainage_m:.1f} m to {alert.end_chainage_m:.1f} m",
         ),
-        ("Wire", alert["wire"]),
-        ("Value", f"{alert['value']:.3f} (threshold {alert['threshold']:.3f})"),
-        ("Kind", alert["kind"]),
-        ("Rule", alert["rule"]),
-        ("Raised at", alert["raised_at"]),
-        ("Alert", f"{alert['id']} ({alert['status']})"),
+        ("Wire", alert.wire),
+        ("Value", f"{alert.value:.3f} (threshold {alert.threshold:.3f})"),
+        ("Kind", alert.kind),
+        ("Rule", alert.rule),
+        ("Raised at", alert.raised_at),
+        ("Alert", f"{alert.id} ({alert.status})"),
     ]
     if details:
         rows.append(("Details", ""))

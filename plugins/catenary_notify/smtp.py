@@ -27,6 +27,7 @@ from email.message import EmailMessage
 from email.utils import formatdate, make_msgid
 from typing import Any
 
+from catenary.plugins import AlertRecord
 from catenary_notify import message
 from catenary_notify.settings import (
     SettingsError,
@@ -55,7 +56,7 @@ DEFAULT_PORTS = {"starttls": 587, "ssl": 465, "none": 25}
 DEFAULT_TIMEOUT_S = 10.0
 
 
-def compose(alert: Mapping[str, Any], sender: str, recipients: list[str]) -> EmailMessage:
+def compose(alert: AlertRecord, sender: str, recipients: list[str]) -> EmailMessage:
     """The message of one alert."""
     mail = EmailMessage()
     mail["Subject"] = f"[catenary] {message.summary(alert)}"
@@ -74,7 +75,7 @@ def _recipients(settings: Mapping[str, Any]) -> list[str]:
     return to
 
 
-def send(alert: Mapping[str, Any], settings: Mapping[str, Any]) -> None:
+def send(alert: AlertRecord, settings: Mapping[str, Any]) -> None:
     """Send ``alert`` as one message to the channel's recipients; raise on any failure."""
     refuse_secret(NAME, settings, "password")
     check_keys(NAME, settings, KEYS)

@@ -22,6 +22,7 @@ from collections.abc import Mapping
 from typing import Any
 from urllib.parse import urlsplit
 
+from catenary.plugins import AlertRecord
 from catenary_notify import message
 from catenary_notify.settings import (
     SettingsError,
@@ -77,13 +78,13 @@ def _headers(settings: Mapping[str, Any]) -> dict[str, str]:
     return headers
 
 
-def payload(alert: Mapping[str, Any]) -> bytes:
+def payload(alert: AlertRecord) -> bytes:
     """The JSON body of one alert."""
-    document = {"event": "alert", "text": message.summary(alert), "alert": dict(alert)}
+    document = {"event": "alert", "text": message.summary(alert), "alert": alert.as_json()}
     return json.dumps(document, ensure_ascii=False).encode()
 
 
-def send(alert: Mapping[str, Any], settings: Mapping[str, Any]) -> None:
+def send(alert: AlertRecord, settings: Mapping[str, Any]) -> None:
     """POST ``alert``; raise unless the server answers 2xx within the timeout."""
     check_keys(NAME, settings, KEYS)
     url = _url(settings)

@@ -11,21 +11,20 @@ The hook only registers; each reporter's module (and matplotlib) is imported whe
 from __future__ import annotations
 
 import importlib
-from collections.abc import Callable, Mapping
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 from catenary.plugins import hookimpl
-from catenary.plugins.types import Reporter
+from catenary.plugins.types import Reporter, ReportRequest
 
 __all__ = ["catenary_reporters"]
 
 
-def _lazy(module: str) -> Callable[[Mapping[str, Any], Path], Path]:
+def _lazy(module: str) -> Callable[[ReportRequest, Path], Path]:
     """``catenary_reports.<module>.write``, imported on the first call."""
 
-    def write(request: Mapping[str, Any], output: Path) -> Path:
-        found: Callable[[Mapping[str, Any], Path], Path]
+    def write(request: ReportRequest, output: Path) -> Path:
+        found: Callable[[ReportRequest, Path], Path]
         found = importlib.import_module(f"catenary_reports.{module}").write
         return found(request, output)
 

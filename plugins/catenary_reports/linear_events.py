@@ -31,6 +31,7 @@ from sqlalchemy.orm import Session
 
 from catenary.errors import UserError
 from catenary.measurement.samples import export_table
+from catenary.plugins import ReportRequest
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Line, Run, SpanMeasurement, Track
 from catenary.storage.runs import find_run
@@ -133,7 +134,7 @@ def _events(session: Session, run: Run) -> pa.Table:
     return pa.Table.from_pylist(rows, schema=EVENT_SCHEMA)
 
 
-def write(raw: Any, output: Path) -> Path:
+def write(raw: ReportRequest, output: Path) -> Path:
     """Write the linear events of the runs chosen by ``raw`` (module docstring) to ``output``."""
     request = parse_request("linear-events", raw, runs=(0, 1), line=True)
     check_output(output, (".csv", ".parquet"))

@@ -43,6 +43,7 @@ from sqlalchemy.orm import Session, selectinload
 from catenary.errors import UserError
 from catenary.limits import LEVELS
 from catenary.measurement.samples import export_table
+from catenary.plugins import ReportRequest
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import (
     Alert,
@@ -516,7 +517,7 @@ def _html(
     return html.page(title, f"generated {html.stamp(now)}", parts)
 
 
-def write(raw: Any, output: Path) -> Path:
+def write(raw: ReportRequest, output: Path) -> Path:
     """Write the maintenance report of ``raw['line']`` (every line when None) to ``output``."""
     request = parse_request("maintenance", raw, line=True)
     suffix = check_output(output, (".html", ".csv", ".parquet"))

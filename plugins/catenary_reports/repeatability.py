@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -21,6 +20,7 @@ import pyarrow as pa
 from catenary.errors import UserError
 from catenary.measurement.compare import Comparison, compare_profiles
 from catenary.measurement.samples import export_table, run_profile
+from catenary.plugins import ReportRequest
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Run
 from catenary.storage.runs import find_run
@@ -128,7 +128,7 @@ def _histogram_figure(comparison: Comparison) -> tuple[str, str]:
     return svg(fig, "repeatability-histogram"), caption
 
 
-def write(raw: Any, output: Path) -> Path:
+def write(raw: ReportRequest, output: Path) -> Path:
     """Write the repeatability report of ``raw['runs']`` (A, B) to ``output``."""
     request = parse_request(
         "repeatability",

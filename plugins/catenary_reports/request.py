@@ -1,4 +1,5 @@
-"""A reporter's request (``catenary.cli.report``), checked against what the reporter takes."""
+"""A reporter's request (``catenary.plugins.ReportRequest``), checked against what the reporter
+takes."""
 
 from __future__ import annotations
 
@@ -6,12 +7,11 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from catenary.config import Settings
 from catenary.errors import UserError
 from catenary.limits import LimitPolicy
-from catenary.plugins import PluginRegistry
+from catenary.plugins import PluginRegistry, ReportRequest
 
 __all__ = ["Request", "check_output", "parse_request"]
 
@@ -31,7 +31,7 @@ class Request:
 
 def parse_request(
     reporter: str,
-    raw: Mapping[str, Any],
+    raw: ReportRequest,
     *,
     runs: tuple[int, int] = (0, 0),
     line: bool = False,
@@ -40,11 +40,8 @@ def parse_request(
     """Check ``raw`` for reporter ``reporter``: between ``runs[0]`` and ``runs[1]`` runs, a
     line (and track) only if ``line``, and only the positive numeric ``options`` named, whose
     values here are the defaults."""
-    settings, registry = raw.get("settings"), raw.get("registry")
-    if not isinstance(settings, Settings) or not isinstance(registry, PluginRegistry):
-        raise TypeError("a report request needs 'settings' and 'registry' (report_request)")
     where = f"reporter {reporter!r}"
-    given = tuple(str(r) for r in raw.get("runs", ()))
+    given = tuple(str(r) for r in raw.runs)
     fewest, most = runs
     if not fewest <= len(given) <= most:
         if most == 0:
@@ -54,12 +51,12 @@ def parse_request(
         else:
             wanted = f"{fewest} to {most} RUNs"
         raise UserError(f"{where} takes {wanted}, not {len(given)} ({' '.join(given) or 'none'})")
-    line_code, track_code = raw.get("line"), raw.get("track")
+    line_code, track_code = raw.line, raw.track
     if not line and (line_code is not None or track_code is not None):
         raise UserError(f"{where} takes no --line or --track")
     defaults = dict(options or {})
     values = dict(defaults)
-    for key, text in dict(raw.get("options", {})).items():
+    for key, text in raw.options.items():
         if key not in defaults:
             known = ", ".join(sorted(defaults)) or "none"
             raise UserError(f"{where}: unknown option {key!r} (known: {known})")
@@ -70,11 +67,10 @@ def parse_request(
         if not (math.isfinite(value) and value > 0.0):
             raise UserError(f"{where}: option {key} = {text!r} is not a positive number")
         values[key] = value
-    policy = raw.get("policy")
     return Request(
-        settings=settings,
-        registry=registry,
-        policy=policy if isinstance(policy, LimitPolicy) else None,
+        settings=raw.settings,
+        registry=raw.registry,
+        policy=raw.policy,
         runs=given,
         line=line_code,
         track=track_code,

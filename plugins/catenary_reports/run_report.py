@@ -28,7 +28,7 @@ import pyarrow as pa
 from catenary.limits import LEVELS, LimitPolicy, Threshold, thresholds
 from catenary.measurement.samples import export_table, read_sample_batches, samples_file
 from catenary.measurement.spans import SPAN_COLUMNS, SPAN_SCHEMA
-from catenary.plugins import PluginRegistry
+from catenary.plugins import PluginRegistry, ReportRequest
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Run, SpanMeasurement
 from catenary.storage.runs import find_run
@@ -409,7 +409,7 @@ def _table(spans: Sequence[SpanMeasurement], limits: _Limits) -> pa.Table:
     return pa.table(columns, schema=_TABLE_SCHEMA)
 
 
-def write(raw: Any, output: Path) -> Path:
+def write(raw: ReportRequest, output: Path) -> Path:
     """Write the run report of ``raw['runs'][0]`` to ``output`` (module docstring)."""
     request = parse_request("run", raw, runs=(1, 1), options={"segment_m": 1000.0})
     suffix = check_output(output, (".html", ".csv", ".parquet"))

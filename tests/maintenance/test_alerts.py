@@ -18,12 +18,11 @@ from catenary.limits import thresholds
 from catenary.maintenance.actions import record_maintenance
 from catenary.maintenance.alerts import (
     RESOLVE_MARGIN_MM,
-    alert_record,
     announce_alerts,
     evaluate_alerts,
     resolve_alert,
 )
-from catenary.plugins import PluginRegistry, hookimpl
+from catenary.plugins import AlertRecord, PluginRegistry, hookimpl
 from catenary.storage.database import session_scope
 from catenary.storage.models import Alert, Run, Track
 
@@ -343,12 +342,12 @@ def test_evaluating_a_run_looks_at_its_spans_only(engine: Engine, registry: Plug
 def test_new_alerts_are_announced_with_their_fields(
     engine: Engine, registry: PluginRegistry
 ) -> None:
-    received: list[dict[str, Any]] = []
+    received: list[AlertRecord] = []
 
     class Probe:
         @hookimpl
-        def catenary_alert_raised(self, alert: dict[str, Any]) -> None:
-            received.append(dict(alert))
+        def catenary_alert_raised(self, alert: AlertRecord) -> None:
+            received.append(alert)
 
     with session_scope(engine) as session:
         fleet = Fleet(session)
@@ -356,12 +355,16 @@ def test_new_alerts_are_announced_with_their_fields(
         new = evaluate(session, registry).new
     probe = PluginRegistry(autoload=False, plugins=[("probe", Probe())])
     announce_alerts(engine, probe, new)
-    assert [r["id"] for r in received] == new
-    assert received[0]["line"] == "L1" and received[0]["track"] == "1"
-    assert received[0]["condition_key"].startswith("threshold/")
+    assert [r.id for r in received] == new
+    assert received[0].line == "L1" and received[0].track == "1"
+    assert received[0].condition_key.startswith("threshold/")
     with session_scope(engine) as session:
         stored = session.get(Alert, new[0])
-        assert stored is not None and alert_record(stored)["value"] == 8.5
+        assert stored is not None and AlertRecord.of(stored).value == 8.5
+    assert received[0].as_json()["raised_at"] == received[0].raised_at  # ISO 8601 text
+    with pytest.warns(DeprecationWarning, match=r"AlertRecord\['line'\] is deprecated"):
+        assert received[0]["line"] == "L1"  # as plugins written for catenary 0.1 read it
+    assert received[0].get("no such field", "-") == "-"
 
 
 def test_spans_of_an_unknown_wire_type_are_said_and_left_alone(

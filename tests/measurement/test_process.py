@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
@@ -24,6 +25,7 @@ from sqlalchemy.orm import Session
 from catenary.cli import cli
 from catenary.measurement.samples import EXPORT_COLUMNS
 from catenary.measurement.spans import SPAN_COLUMNS
+from catenary.plugins import PluginRegistry, Processor, hookimpl
 from catenary.storage import migrate
 from catenary.storage.database import make_engine
 from catenary.storage.models import Mast, Run, SpanMeasurement
@@ -335,3 +337,51 @@ def test_two_runs_over_the_same_wire_repeat_within_a_tenth_of_a_millimetre(
     assert "histogram of B - A" in result.output
     bad = invoke("compare", "1", "9", "--db", database)
     assert "no run 9" in one_line_error(bad)
+
+
+class _ThirdPartyProcessors:
+    """A plugin whose processors fail: one when created, one that returns the wrong type."""
+
+    @hookimpl
+    def catenary_processors(self) -> list[Processor]:
+        def broken(rig_path: Path, settings: Any) -> Any:
+            raise RuntimeError("licence server unreachable")
+
+        class Wrong:
+            def process(self, block: Any) -> Any:
+                return {"rows": 0}
+
+            def finish(self) -> Any:
+                return {"rows": 0}
+
+        return [
+            Processor("broken", "fails to start", broken),
+            Processor("wrong", "returns a dict", lambda rig_path, settings: Wrong()),
+        ]
+
+
+@pytest.mark.parametrize(
+    ("processor", "error"),
+    [
+        ("broken", "RuntimeError: licence server unreachable"),
+        ("wrong", "TypeError: returned dict, not WireObservations"),
+    ],
+)
+def test_a_failing_third_party_processor_is_named_in_one_line(
+    simulated: Simulated,
+    database: str,
+    isolated_environment: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    processor: str,
+    error: str,
+) -> None:
+    def registry(**kwargs: Any) -> PluginRegistry:
+        return PluginRegistry(plugins=[("acme", _ThirdPartyProcessors())], **kwargs)
+
+    monkeypatch.setattr("catenary.plugins.manager.PluginRegistry", registry)
+    result = process(simulated, database, "--processor", processor)
+    expected = f"Error: processor {processor!r} of plugin 'acme' failed: {error}"
+    assert one_line_error(result) == expected
+    assert stored(database) == (0, 0)
+    samples = isolated_environment / "samples"
+    assert not samples.exists() or not any(samples.iterdir())

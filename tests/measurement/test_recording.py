@@ -340,7 +340,8 @@ def test_a_source_failing_midway_keeps_the_scans_without_the_marker(tmp_path: Pa
     assert result.exit_code == 1
     lines = result.output.strip().splitlines()
     assert lines[-1] == (
-        "Error: source 'fake-scans' failed: RuntimeError: camera link lost; kept 20 scans in "
+        "Error: source 'fake-scans' of plugin 'fake' failed: RuntimeError: camera link lost; "
+        "kept 20 scans in "
         f"{out} (no completion marker: reads as interrupted)"
     )
     with pytest.warns(RunFileWarning), open_run(out) as run:
@@ -362,7 +363,7 @@ def test_a_source_failing_before_any_scan_leaves_no_file(tmp_path: Path) -> None
     assert "camera link lost" in result.output and not out.exists()
     result = record(out, "--source", "fake-scans", "--source-option", "blocks=0")
     assert result.exit_code == 1 and not out.exists()
-    assert "source 'fake-scans' gave no scans: nothing recorded" in result.output
+    assert "source 'fake-scans' of plugin 'fake' gave no scans: nothing recorded" in result.output
     result = record(
         out,
         "--source",
@@ -377,7 +378,7 @@ def test_a_source_failing_before_any_scan_leaves_no_file(tmp_path: Path) -> None
     result = record(out, "--source", "fake-broken")
     assert result.exit_code == 1
     assert result.output.strip() == (
-        "Error: source 'fake-broken' (plugin fake) failed: ZeroDivisionError: division by zero"
+        "Error: source 'fake-broken' of plugin 'fake' failed: ZeroDivisionError: division by zero"
     )
 
 

@@ -136,9 +136,9 @@ from catenary.plugins.types import Reporter
 
 
 def write(request, output):
-    if request["options"].get("fail"):
+    if request.options.get("fail"):
         raise RuntimeError("the fake reporter broke")
-    text = f"runs={','.join(request['runs'])} line={request['line']} {request['options']}"
+    text = f"runs={','.join(request.runs)} line={request.line} {dict(request.options)}"
     Path(output).write_text(text)
     return Path(output)
 

@@ -9,10 +9,11 @@ this package imports it: plugins add commands through the ``catenary_commands`` 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
 
-from catenary.cli.app import CatenaryGroup, app_of
+from catenary.cli import app
 from catenary.cli.db import db
 from catenary.cli.maintenance import alerts, maintenance
 from catenary.cli.plugins import plugins_command
@@ -25,7 +26,7 @@ from catenary.cli.wiretypes import wire_types_command
 __all__ = ["cli", "main"]
 
 
-@click.group(cls=CatenaryGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=app.CatenaryGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.option(
     "--config",
     "config_path",
@@ -42,7 +43,7 @@ __all__ = ["cli", "main"]
 @click.pass_context
 def cli(ctx: click.Context, config_path: Path | None, database_url: str | None) -> None:
     """Contact wire wear from line-scan stereovision: measure, store, maintain."""
-    app_of(ctx)
+    app.app_of(ctx)
 
 
 for _command in (
@@ -60,6 +61,17 @@ for _command in (
     maintenance,
 ):
     cli.add_command(_command)
+
+
+def __getattr__(name: str) -> Any:
+    """``catenary.cli.app_of``, the 0.1 way a plugin's command reached the settings:
+    deprecated (a command takes ``catenary.plugins.CommandContext`` instead)."""
+    if name == "app_of":
+        from catenary.deprecated import moved
+
+        moved("catenary.cli.app_of", "catenary.plugins.pass_command_context")
+        return app.app_of
+    raise AttributeError(f"module 'catenary.cli' has no attribute {name!r}")
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -106,12 +106,9 @@ def _open_source(
             hint = f"; {name!r} is a {other_kind}: use {option}"
         known = ", ".join(sorted(sources)) or "none"
         raise UserError(f"unknown {kind} {name!r} (known: {known}){hint}")
-    from catenary.measurement.recording import source_errors
-
-    label = f"{kind} {name!r} (plugin {registry.owner(kind, name)})"
-    with source_errors(label):
+    with registry.boundary(kind, name):
         stream = source.open(settings)
-    return stream, f"{kind} {name!r}"
+    return stream, registry.describe(kind, name)
 
 
 def _close(stream: object) -> None:

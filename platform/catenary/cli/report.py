@@ -115,14 +115,6 @@ def report(
         policy=policy_name,
         options=_options(pairs),
     )
-    try:
+    with registry.boundary("reporter", name):
         written = reporter.write(request, output)
-    except (UserError, OSError):
-        raise
-    except Exception as exc:
-        text = " ".join(str(exc).split())
-        raise UserError(
-            f"reporter {name!r} of plugin {registry.owner('reporter', name)!r} failed: "
-            f"{type(exc).__name__}{': ' + text if text else ''}"
-        ) from None
     click.echo(f"{name} report written to {written}")

@@ -123,7 +123,8 @@ def write_report(context: JobContext, fire_time: datetime, options: Mapping[str,
         options=options.get("options"),
     )
     path.parent.mkdir(parents=True, exist_ok=True)
-    written = reporters[name].write(request, path)
+    with context.registry.boundary("reporter", name):
+        written = reporters[name].write(request, path)
     log.info("report %r written to %s", name, written)
 
 

@@ -39,7 +39,8 @@ from catenary.config import Settings
 from catenary.errors import UserError
 from catenary.limits import LEVELS
 from catenary.plugins import PluginRegistry
-from catenary.plugins.types import Notifier
+from catenary.plugins.manager import PluginFailure, plugin_errors
+from catenary.plugins.types import AlertRecord, Notifier
 from catenary.storage.models import NAME_LENGTH, Alert, AlertNotification, Track, utc_now
 
 SessionFactory = Callable[[], AbstractContextManager[Session]]
@@ -150,30 +151,6 @@ def notification_config(settings: Settings) -> NotificationConfig:
     return NotificationConfig(channels, int(max_attempts), float(retry))
 
 
-def alert_fields(alert: Alert) -> dict[str, Any]:
-    """What a notifier gets of an alert: its stored fields, its line and track codes, in JSON
-    types (times as ISO 8601 text)."""
-    return {
-        "id": alert.id,
-        "level": alert.level,
-        "kind": alert.kind,
-        "status": alert.status,
-        "line": alert.track.line.code,
-        "track": alert.track.code,
-        "wire": alert.wire,
-        "mast_from": alert.mast_from,
-        "mast_to": alert.mast_to,
-        "start_chainage_m": alert.start_chainage_m,
-        "end_chainage_m": alert.end_chainage_m,
-        "value": alert.value,
-        "threshold": alert.threshold,
-        "rule": alert.rule,
-        "condition_key": alert.condition_key,
-        "raised_at": alert.raised_at.isoformat(),
-        "details": dict(alert.details or {}),
-    }
-
-
 _INSERTS: dict[str, Callable[..., Any]] = {
     "postgresql": postgresql.insert,
     "sqlite": sqlite.insert,
@@ -250,9 +227,9 @@ def _one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
-def send_bounded(notifier: Notifier, alert: Mapping[str, Any], channel: Channel) -> str | None:
-    """Call ``notifier.send`` for ``channel``, giving up after the channel's timeout; return
-    None if it returned, else the error in one line.
+def send_bounded(notifier: Notifier, alert: AlertRecord, channel: Channel) -> str | None:
+    """Call ``notifier.send`` for ``channel`` inside the plugins' error boundary, giving up
+    after the channel's timeout; return None if it returned, else its error in one line.
 
     The send runs in a daemon thread: one that hangs is left behind (it may still deliver,
     and its delivery is then retried: at least once, never lost).
@@ -261,8 +238,11 @@ def send_bounded(notifier: Notifier, alert: Mapping[str, Any], channel: Channel)
 
     def target() -> None:
         try:
-            notifier.send(alert, channel.settings)
-        except Exception as exc:
+            with plugin_errors(f"notifier {notifier.name!r}"):
+                notifier.send(alert, channel.settings)
+        except PluginFailure as failure:
+            outcome.append(failure.detail)
+        except Exception as exc:  # an error the user can act on, said as it is
             outcome.append(_one_line(exc))
         else:
             outcome.append(None)
@@ -312,9 +292,9 @@ def _attempt(
             .where(Alert.id == row.alert_id)
             .options(joinedload(Alert.track).joinedload(Track.line))
         ).one()
-        fields = alert_fields(alert)
+        record = AlertRecord.of(alert)
 
-    error = send_bounded(notifier, fields, channel)
+    error = send_bounded(notifier, record, channel)
 
     with session_factory() as session:
         row = session.get_one(AlertNotification, notification_id)

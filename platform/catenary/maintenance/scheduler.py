@@ -56,7 +56,7 @@ from sqlalchemy import Engine
 from catenary.config import Settings
 from catenary.errors import UserError
 from catenary.maintenance.jobs import JOBS, JobContext, check_options, run_job
-from catenary.plugins import PluginRegistry
+from catenary.plugins import PluginFailure, PluginRegistry
 from catenary.storage.database import open_database
 from catenary.storage.models import utc_now
 
@@ -210,6 +210,14 @@ def log_job_event(event: Any) -> None:
             "job %r missed its run at %s (later than the misfire grace time)",
             event.job_id,
             fire_time,
+        )
+    elif isinstance(event.exception, PluginFailure):  # a plugin's own error: where it was
+        log.error(
+            "job %r failed for %s: %s\n%s",
+            event.job_id,
+            fire_time,
+            event.exception,
+            event.traceback,
         )
     elif isinstance(event.exception, UserError):
         log.error("job %r failed for %s: %s", event.job_id, fire_time, event.exception)

@@ -36,6 +36,7 @@ import hashlib
 import math
 import uuid
 from collections.abc import Callable, Mapping
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -45,7 +46,7 @@ import numpy as np
 import pyarrow as pa
 
 from catenary.config import Settings
-from catenary.domain import RunHeader, TrackRegister, WireObservations
+from catenary.domain import RunHeader, TrackRegister, VehicleGeometry, WireObservations
 from catenary.errors import UserError
 from catenary.measurement.chain import MeasurementChain, TrackSamples
 from catenary.measurement.chainage import ChainageAlignment, TurningPointFinder, align_to_register
@@ -54,7 +55,7 @@ from catenary.measurement.runfile import open_run
 from catenary.measurement.samples import SampleWriter, read_sample_batches
 from catenary.measurement.spans import SpanAccumulator, SpanLayout, SpanStatistics
 from catenary.measurement.vehicle import load_vehicle_geometry
-from catenary.plugins import PluginRegistry
+from catenary.plugins import BlockProcessor, PluginRegistry
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import SpanMeasurement
 from catenary.storage.runs import find_stored_run, store_run
@@ -243,7 +244,7 @@ def _check_inputs(request: ProcessRequest, settings: Settings, registry: PluginR
 
 def _processor(
     request: ProcessRequest, registry: PluginRegistry, settings: Settings
-) -> tuple[Any, Any]:
+) -> tuple[BlockProcessor, VehicleGeometry]:
     """The processor (created: it reads and checks the rig) and the vehicle geometry."""
     found = registry.processors().get(request.processor)
     if found is None:
@@ -253,18 +254,20 @@ def _processor(
     if not isinstance(options, Mapping):
         raise UserError(f"{settings.config_path}: [processors.{request.processor}] must be a table")
     geometry = load_vehicle_geometry(request.rig_path)
-    return found.create(request.rig_path, options), geometry
+    with registry.boundary("processor", request.processor):
+        return found.create(request.rig_path, options), geometry
 
 
 def _measure(
     request: ProcessRequest,
-    processor: Any,
+    processor: BlockProcessor,
+    boundary: Callable[[], AbstractContextManager[None]],
     chain: MeasurementChain,
     writer: SampleWriter,
     progress: Callable[[int], None],
 ) -> tuple[TurningPointFinder, float]:
-    """Pass 1: every block through the processor and the chain; returns the turning points
-    found and the run's last encoder position [m]."""
+    """Pass 1: every block through the processor (each call inside ``boundary``) and the
+    chain; returns the turning points found and the run's last encoder position [m]."""
     finder = TurningPointFinder()
     last_position = 0.0
 
@@ -273,21 +276,20 @@ def _measure(
         good = ~rows.vehicle_fault
         finder.push(rows.wire[good], rows.position_m[good], rows.stagger_mm[good])
 
-    def observations(value: Any) -> WireObservations:
-        if not isinstance(value, WireObservations):
-            raise TypeError(
-                f"processor {request.processor!r} returned {type(value).__name__}, "
-                "not WireObservations"
-            )
+    def observations(call: Callable[..., object], *args: object) -> WireObservations:
+        with boundary():
+            value = call(*args)
+            if not isinstance(value, WireObservations):
+                raise TypeError(f"returned {type(value).__name__}, not WireObservations")
         return value
 
     with open_run(request.run_path) as run:
         for block in run.blocks(BLOCK_SCANS):
-            keep(chain.push(block, observations(processor.process(block))))
+            keep(chain.push(block, observations(processor.process, block)))
             if block.scans:
                 last_position = float(block.position_m[-1])
             progress(block.scans)
-    keep(chain.finish(observations(processor.finish())))
+    keep(chain.finish(observations(processor.finish)))
     return finder, last_position
 
 
@@ -442,7 +444,12 @@ def process_run(
         try:
             with SampleWriter(measured, _MEASURED_SCHEMA) as writer:
                 finder, last_position = _measure(
-                    request, processor, MeasurementChain(geometry), writer, progress
+                    request,
+                    processor,
+                    lambda: registry.boundary("processor", request.processor),
+                    MeasurementChain(geometry),
+                    writer,
+                    progress,
                 )
             alignment, layout, ends = _align(inputs, finder, last_position)
             with SampleWriter(partial) as writer:

@@ -9,15 +9,17 @@ How the sources combine
   Its header becomes the run's root attributes and cameras; its blocks' positions, times and
   lines are appended as they come.
 * The **vehicle sensor source** (``--vehicle-source NAME``, optional: ``can``, live bus or
-  log) is a registered ``Source`` whose stream is a :class:`VehicleStream`: it gives no
+  log) is a registered ``VehicleSource`` whose stream is a ``VehicleStream``: it gives no
   scans but timestamped displacement samples on the scan clock, with ``fault`` set where
   they must not be trusted. After each block of scans the recorder writes its samples up to
   the block's last scan time plus :data:`VEHICLE_MARGIN_S` (so every scan has samples on
   both sides), and at the end asks for the rest with ``final=True``. Without a vehicle
   source, the scan source's own ``block.vehicle`` samples are written (at the scan times).
-  Which kind a source is, is seen from the stream it opens; naming one in the other's role
-  is a one-line error. (A ``VehicleSource`` registration kind of its own would tell the
-  roles apart before anything is opened.)
+  The two kinds are registered apart, so naming one in the other's role is a one-line error
+  before anything is opened.
+* Every call into a source runs inside the plugins' error boundary
+  (``catenary.plugins.manager.plugin_errors``): a source's own failure is one line naming it
+  and its plugin.
 * **Faults.** The run file has no fault column: a sample the source flags is written as NaN,
   which the reader (:mod:`catenary.measurement.runfile`) takes as a faulty reading and flags every
   scan between the valid samples either side of it.
@@ -60,13 +62,13 @@ import numpy as np
 from catenary.domain import DEFAULT_BLOCK_SCANS, RunHeader, ScanBlock, VehicleSamples
 from catenary.errors import UserError
 from catenary.measurement.runfile import RunFileWriter
+from catenary.plugins.manager import plugin_errors
 from catenary.plugins.types import ScanStream, VehicleStream
 
 __all__ = [
     "VEHICLE_MARGIN_S",
     "Recording",
     "record_run",
-    "source_errors",
 ]
 
 VEHICLE_MARGIN_S: Final = 0.5
@@ -164,19 +166,6 @@ class _InterruptGuard:
             yield
         finally:
             self._deferring -= 1
-
-
-@contextmanager
-def source_errors(name: str) -> Iterator[None]:
-    """A source's own failure (not a user error) as a one-line ``UserError`` naming it."""
-    try:
-        yield
-    except (UserError, KeyboardInterrupt):
-        raise
-    except Exception as exc:
-        text = " ".join(str(exc).split())
-        detail = f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-        raise UserError(f"{name} failed: {detail}") from None
 
 
 def _append_scans(writer: RunFileWriter, block: ScanBlock, n: int, source: str) -> None:
@@ -310,10 +299,10 @@ def _stream_blocks(
     last_time_s: float | None = None
     blocks: Iterator[ScanBlock] | None = None
     try:
-        with source_errors(scan_source):
+        with plugin_errors(scan_source):
             blocks = iter(scans.blocks(block_scans))
         while not guard.requested and (max_scans is None or writer.scans < max_scans):
-            with source_errors(scan_source):
+            with plugin_errors(scan_source):
                 block = next(blocks, None)  # Ctrl-C raises here while the source waits
             if block is None:
                 break
@@ -326,7 +315,7 @@ def _stream_blocks(
                 if vehicle is None:
                     samples.push(_slice_vehicle(block.vehicle, n))
                 else:
-                    with source_errors(vehicle_source):
+                    with plugin_errors(vehicle_source):
                         for part in vehicle.vehicle_samples(last_time_s + VEHICLE_MARGIN_S):
                             samples.push(part)
             if progress is not None:
@@ -336,10 +325,10 @@ def _stream_blocks(
     with guard.deferred():
         close = getattr(blocks, "close", None)
         if callable(close):
-            with source_errors(scan_source):
+            with plugin_errors(scan_source):
                 close()
         if vehicle is not None and last_time_s is not None:
-            with source_errors(vehicle_source):
+            with plugin_errors(vehicle_source):
                 for part in vehicle.vehicle_samples(last_time_s + VEHICLE_MARGIN_S, final=True):
                     samples.push(part)
         writer.close()

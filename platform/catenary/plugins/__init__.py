@@ -1,24 +1,32 @@
 """The plugin API: what a catenary plugin imports, and only from here.
 
-- ``hookimpl``: the marker for a plugin's hook implementations (the hooks: ``hookspecs``);
-- the registration types a contribution hook returns (``types``): ``WireType``,
-  ``LimitPolicy``, ``Source``, ``VehicleSource``, ``Processor``, ``Reporter``, ``Notifier``,
-  ``Command``, and the protocols their callables return;
+- ``hookimpl``: the marker for a plugin's hook implementations (the hooks, each with an
+  example: ``catenary.plugins.hookspecs``);
+- the registrations a contribution hook returns (``types``): ``WireType``, ``LimitPolicy``,
+  ``Source``, ``VehicleSource``, ``Processor``, ``Reporter``, ``Notifier``, ``Command``, and
+  the protocols their callables return (``ScanStream``, ``VehicleStream``,
+  ``BlockProcessor``);
+- the payloads the core hands over: ``ReportRequest`` (reporters), ``AlertRecord``
+  (notifiers, ``catenary_alert_raised``), and the domain types of ``catenary.domain``;
 - ``CommandContext`` and ``pass_command_context`` (``context``): what a plugin's command
   receives (settings, registry, database) instead of importing the CLI;
-- ``PluginRegistry`` (``manager``): the core's only caller of the hooks, and ``PluginError``.
+- ``PluginRegistry`` (``manager``): the core's only caller of the hooks, with its error
+  boundary (``PluginRegistry.boundary``, ``PluginFailure``) and the load errors
+  (``PluginError``).
 """
 
 from catenary.limits import LimitPolicy
 from catenary.plugins.context import CommandContext, pass_command_context
 from catenary.plugins.hookspecs import hookimpl
-from catenary.plugins.manager import PluginError, PluginRegistry
+from catenary.plugins.manager import PluginError, PluginFailure, PluginRegistry
 from catenary.plugins.types import (
+    AlertRecord,
     BlockProcessor,
     Command,
     Notifier,
     Processor,
     Reporter,
+    ReportRequest,
     ScanStream,
     Source,
     VehicleSource,
@@ -27,14 +35,17 @@ from catenary.plugins.types import (
 from catenary.wiretype import WireType
 
 __all__ = [
+    "AlertRecord",
     "BlockProcessor",
     "Command",
     "CommandContext",
     "LimitPolicy",
     "Notifier",
     "PluginError",
+    "PluginFailure",
     "PluginRegistry",
     "Processor",
+    "ReportRequest",
     "Reporter",
     "ScanStream",
     "Source",

@@ -3,22 +3,29 @@
 It is the only caller of the hooks. Each entry point is loaded on its own and each hook
 implementation is called on its own, so a plugin that fails to import, raises inside a hook,
 returns the wrong type or registers a name another plugin already took is reported by name
-(``PluginRegistry.errors``) and the platform keeps working with the others.
+(``PluginRegistry.errors``) and the platform keeps working with the others. Every call into
+the callables plugins register runs inside one error boundary (``plugin_errors``, or
+``PluginRegistry.boundary``), which names the plugin and the kind in one line.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 from importlib.metadata import entry_points
 from typing import Any, TypeVar
 
+import click
 import pluggy
 
+from catenary.errors import UserError
 from catenary.limits import LimitPolicy
 from catenary.plugins import hookspecs
 from catenary.plugins.types import (
+    AlertRecord,
     Command,
     Notifier,
     Processor,
@@ -26,7 +33,7 @@ from catenary.plugins.types import (
     Source,
     VehicleSource,
 )
-from catenary.wiretype import WireType
+from catenary.wiretype import ProfileRangeError, WireType
 
 ENTRY_POINT_GROUP = "catenary.plugins"
 DISABLE_AUTOLOAD_ENV = "CATENARY_DISABLE_PLUGIN_AUTOLOAD"
@@ -50,6 +57,43 @@ class PluginError:
 def _one_line(exc: BaseException) -> str:
     text = " ".join(str(exc).split())
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+class PluginFailure(UserError):
+    """Plugin code failed, not through the user's input: one line naming the plugin and the
+    kind (``what``), then the plugin's own error (``detail``, ``Type: message``)."""
+
+    def __init__(self, what: str, detail: str) -> None:
+        super().__init__(f"{what} failed: {detail}")
+        self.what = what
+        self.detail = detail
+
+
+_PASSED_THROUGH: tuple[type[BaseException], ...] = (
+    UserError,
+    ProfileRangeError,
+    click.ClickException,
+    click.exceptions.Exit,
+    click.exceptions.Abort,
+)
+"""What plugin code may raise as it is: errors the user can act on, and click's own."""
+
+
+@contextmanager
+def plugin_errors(what: str) -> Iterator[None]:
+    """The error boundary around plugin code for ``what`` (``"processor 'x' of plugin 'y'"``):
+    an exception the user can act on (a ``UserError``, a file error naming its file, click's
+    own) passes as it is; any other becomes a ``PluginFailure`` naming ``what``."""
+    try:
+        yield
+    except _PASSED_THROUGH:
+        raise
+    except OSError as exc:
+        if exc.filename:
+            raise
+        raise PluginFailure(what, _one_line(exc)) from exc
+    except Exception as exc:
+        raise PluginFailure(what, _one_line(exc)) from exc
 
 
 class PluginRegistry:
@@ -155,6 +199,19 @@ class PluginRegistry:
         """The plugin that registered ``name`` of ``kind`` (e.g. ``"wire type"``)."""
         return self._owner[(kind, name)]
 
+    def describe(self, kind: str, name: str) -> str:
+        """``"reporter 'run' of plugin 'reports'"``: what an error names."""
+        return f"{kind} {name!r} of plugin {self.owner(kind, name)!r}"
+
+    def boundary(self, kind: str, name: str) -> contextlib.AbstractContextManager[None]:
+        """The error boundary (``plugin_errors``) around a call into what plugin registered as
+        ``name`` of ``kind``::
+
+            with registry.boundary("reporter", name):
+                reporter.write(request, output)
+        """
+        return plugin_errors(self.describe(kind, name))
+
     def wire_types(self) -> dict[str, WireType]:
         return self._collect("catenary_wire_types", "wire type", WireType)
 
@@ -210,19 +267,9 @@ class PluginRegistry:
         """Tell every plugin that a run was committed."""
         self._notify("catenary_run_stored", {"run_id": run_id, "database_url": database_url})
 
-    def alert_raised(self, alert: Mapping[str, Any]) -> None:
+    def alert_raised(self, alert: AlertRecord) -> None:
         """Tell every plugin that an alert was committed."""
         self._notify("catenary_alert_raised", {"alert": alert})
 
 
-__all__ = [
-    "Command",
-    "Notifier",
-    "PluginError",
-    "PluginRegistry",
-    "Processor",
-    "Reporter",
-    "Source",
-    "VehicleSource",
-    "WireType",
-]
+__all__ = ["PluginError", "PluginFailure", "PluginRegistry", "plugin_errors"]

@@ -1,21 +1,47 @@
-"""What plugins register: small frozen dataclasses, each with a unique ``name`` per kind.
+"""What plugins register, and what the core hands to the callables they register.
 
-A contribution hook returns these (or a list of them); the core checks their type, refuses a
-second registration of a name already taken, and calls the callables they carry inside its own
-error boundary (``catenary.plugins``).
+A contribution hook returns registrations (small frozen dataclasses, each with a unique
+``name`` per kind: ``Source``, ``VehicleSource``, ``Processor``, ``Reporter``, ``Notifier``,
+``Command``); the core checks their type, refuses a second registration of a name already
+taken, and calls the callables they carry inside its error boundary
+(``PluginRegistry.boundary``). The payloads are typed too: a reporter gets a
+``ReportRequest``, a notifier and the ``catenary_alert_raised`` hook an ``AlertRecord``, and a
+processor returns ``WireObservations``.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import warnings
 from collections.abc import Callable, Iterable, Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from datetime import datetime
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import click
 
-from catenary.domain import RunHeader, ScanBlock, VehicleSamples
-from catenary.wiretype import WireType
+from catenary.config import Settings
+from catenary.domain import RunHeader, ScanBlock, VehicleSamples, WireObservations
+from catenary.limits import LimitPolicy
+
+if TYPE_CHECKING:
+    from catenary.plugins.manager import PluginRegistry
+    from catenary.storage.models import Alert
+
+__all__ = [
+    "AlertRecord",
+    "BlockProcessor",
+    "Command",
+    "Notifier",
+    "Processor",
+    "ReportRequest",
+    "Reporter",
+    "ScanStream",
+    "Source",
+    "VehicleSource",
+    "VehicleStream",
+]
 
 
 class ScanStream(Protocol):
@@ -52,9 +78,105 @@ class BlockProcessor(Protocol):
     ``finish()`` is called once after the last block and returns the rest.
     """
 
-    def process(self, block: ScanBlock) -> Any: ...
+    def process(self, block: ScanBlock) -> WireObservations: ...
 
-    def finish(self) -> Any: ...
+    def finish(self) -> WireObservations: ...
+
+
+class _KeyAccess:
+    """Reading a payload's fields by key, as plugins written for catenary 0.1 did (payloads
+    were mappings then): deprecated, and gone in the next release."""
+
+    def __getitem__(self, key: str) -> Any:
+        names = {f.name for f in dataclasses.fields(self)}  # type: ignore[arg-type]
+        if key not in names:
+            raise KeyError(key)
+        warnings.warn(
+            f"{type(self).__name__}[{key!r}] is deprecated: read the attribute .{key}",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(self, key)
+
+    def get(self, key: str, default: Any = None) -> Any:
+        """Deprecated, as ``[key]``."""
+        try:
+            return self[key]
+        except KeyError:
+            return default
+
+
+@dataclass(frozen=True)
+class ReportRequest(_KeyAccess):
+    """What a reporter's ``write(request, output_path)`` is given.
+
+    ``policy``: the wear-limit policy (``--policy NAME``, else the config's ``[limits]``), None
+    without one; ``runs``: the run references given (ids or ``latest``); ``line``, ``track``:
+    codes or None; ``options``: the ``--set KEY=VALUE`` pairs. A reporter chooses its
+    output's format by the file's suffix and refuses, in one line, what it does not take.
+    """
+
+    settings: Settings
+    registry: PluginRegistry
+    policy: LimitPolicy | None = None
+    runs: tuple[str, ...] = ()
+    line: str | None = None
+    track: str | None = None
+    options: Mapping[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class AlertRecord(_KeyAccess):
+    """A committed alert as plugins see it (a notifier's ``send``, the ``catenary_alert_raised``
+    hook): its stored fields and its line and track codes, in JSON types (``as_json``)."""
+
+    id: int
+    level: str
+    kind: str
+    status: str
+    line: str
+    track: str
+    wire: int
+    mast_from: str | None
+    mast_to: str | None
+    start_chainage_m: float
+    end_chainage_m: float
+    value: float
+    threshold: float
+    rule: str
+    condition_key: str
+    raised_at: str  # ISO 8601
+    details: Mapping[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, alert: Alert) -> AlertRecord:
+        """The record of a stored alert (its track and line loaded)."""
+        raised: datetime = alert.raised_at
+        return cls(
+            id=alert.id,
+            level=alert.level,
+            kind=alert.kind,
+            status=alert.status,
+            line=alert.track.line.code,
+            track=alert.track.code,
+            wire=alert.wire,
+            mast_from=alert.mast_from,
+            mast_to=alert.mast_to,
+            start_chainage_m=alert.start_chainage_m,
+            end_chainage_m=alert.end_chainage_m,
+            value=alert.value,
+            threshold=alert.threshold,
+            rule=alert.rule,
+            condition_key=alert.condition_key,
+            raised_at=raised.isoformat(),
+            details=dict(alert.details or {}),
+        )
+
+    def as_json(self) -> dict[str, Any]:
+        """The record as a JSON object (what the webhook posts as ``alert``)."""
+        record = dataclasses.asdict(self)
+        record["details"] = dict(self.details)
+        return record
 
 
 @dataclass(frozen=True)
@@ -91,7 +213,7 @@ class Reporter:
 
     name: str
     description: str
-    write: Callable[[Mapping[str, Any], Path], Path]
+    write: Callable[[ReportRequest, Path], Path]
 
 
 @dataclass(frozen=True)
@@ -100,23 +222,14 @@ class Notifier:
 
     name: str
     description: str
-    send: Callable[[Mapping[str, Any], Mapping[str, Any]], None]
+    send: Callable[[AlertRecord, Mapping[str, Any]], None]
 
 
 @dataclass(frozen=True)
 class Command:
-    """A CLI subcommand added to ``catenary``; ``command.name`` is used unless ``name`` set."""
+    """A CLI subcommand added to ``catenary`` under ``name``: a click command whose options
+    are declared without importing heavy modules (``catenary --help`` lists it); it takes
+    the invocation's ``CommandContext`` with ``@pass_command_context``."""
 
     name: str
     command: click.Command
-
-
-KINDS: dict[str, type] = {
-    "wire type": WireType,
-    "source": Source,
-    "vehicle source": VehicleSource,
-    "processor": Processor,
-    "reporter": Reporter,
-    "notifier": Notifier,
-    "command": Command,
-}

@@ -19,7 +19,7 @@ from catenary.maintenance.notifications import (
     notification_config,
     queue_notifications,
 )
-from catenary.plugins import PluginRegistry, hookimpl
+from catenary.plugins import AlertRecord, PluginRegistry, hookimpl
 from catenary.plugins.types import Notifier
 from catenary.storage.database import session_scope
 from catenary.storage.models import Alert, AlertNotification
@@ -34,15 +34,15 @@ class Fake:
         self.release = threading.Event()
         self.during_send: Callable[[], None] | None = None
 
-    def send(self, alert: Mapping[str, Any], settings: Mapping[str, Any]) -> None:
+    def send(self, alert: AlertRecord, settings: Mapping[str, Any]) -> None:
         if self.during_send is not None:
             self.during_send()
         if self.failures > 0:
             self.failures -= 1
             raise RuntimeError("relay\nunavailable")
-        self.sent.append((dict(alert), dict(settings)))
+        self.sent.append((alert.as_json(), dict(settings)))
 
-    def hang(self, alert: Mapping[str, Any], settings: Mapping[str, Any]) -> None:
+    def hang(self, alert: AlertRecord, settings: Mapping[str, Any]) -> None:
         self.release.wait(30)
 
     @hookimpl

@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from catenary.plugins import PluginRegistry, hookimpl
+from catenary.plugins import AlertRecord, PluginRegistry, ReportRequest, hookimpl
 from catenary.plugins.types import Notifier, Reporter
 
 
@@ -19,12 +19,12 @@ class Fakes:
     set) and notifier ``fake``."""
 
     def __init__(self) -> None:
-        self.reports: list[tuple[Mapping[str, Any], Path]] = []
-        self.sent: list[Mapping[str, Any]] = []
+        self.reports: list[tuple[ReportRequest, Path]] = []
+        self.sent: list[AlertRecord] = []
         self.error: Exception | None = None
         self.hold: threading.Event | None = None
 
-    def write(self, request: Mapping[str, Any], path: Path) -> Path:
+    def write(self, request: ReportRequest, path: Path) -> Path:
         if self.hold is not None:
             self.hold.wait(30)
         if self.error is not None:
@@ -32,7 +32,7 @@ class Fakes:
         self.reports.append((request, path))
         return path
 
-    def send(self, alert: Mapping[str, Any], settings: Mapping[str, Any]) -> None:
+    def send(self, alert: AlertRecord, settings: Mapping[str, Any]) -> None:
         self.sent.append(alert)
 
     @hookimpl

@@ -161,8 +161,8 @@ def test_a_report_job_runs_with_its_fire_time(
     date = fire.astimezone(scheduler.timezone).date().isoformat()
     assert path == settings.data_dir / "reports" / f"L1-{date}.txt"
     assert path.parent.is_dir()
-    assert (request["line"], request["track"], request["runs"]) == ("L1", None, ())
-    assert request["settings"] is settings
+    assert (request.line, request.track, request.runs) == ("L1", None, ())
+    assert request.settings is settings
 
 
 def test_job_errors_and_missed_runs_are_logged(
@@ -198,7 +198,10 @@ def test_job_errors_and_missed_runs_are_logged(
     (boom,) = logged("job 'boom' failed")
     assert boom.levelno == logging.ERROR
     first_line, trace = boom.getMessage().split("\n", 1)
-    assert first_line == f"job 'boom' failed for {now.isoformat()}: RuntimeError: disk full"
+    assert first_line == (
+        f"job 'boom' failed for {now.isoformat()}: reporter 'fake' of plugin 'fakes' failed: "
+        "RuntimeError: disk full"
+    )
     assert "in write" in trace  # the traceback of an unexpected error
     (unknown,) = logged("job 'unknown'")
     assert unknown.getMessage() == (
@@ -310,7 +313,7 @@ def test_deliver_notifications_job(
         )
     with caplog.at_level(logging.INFO, "catenary.maintenance.jobs"):
         run_job("deliver-notifications", {}, context, FIRE)
-    assert [alert["condition_key"] for alert in fakes.sent] == ["k"]
+    assert [alert.condition_key for alert in fakes.sent] == ["k"]
     assert caplog.messages == ["notifications: 1 sent, 0 failed"]
 
 

@@ -49,7 +49,6 @@ from catenary.maintenance.alerts.evaluation import (
 from catenary.maintenance.alerts.lifecycle import (
     ACTIVE,
     acknowledge_alert,
-    alert_record,
     announce_alerts,
     list_alerts,
     new_alerts_since,
@@ -64,7 +63,6 @@ __all__ = [
     "Evaluation",
     "RunAlerting",
     "acknowledge_alert",
-    "alert_record",
     "announce_alerts",
     "check_policy",
     "evaluate_alerts",

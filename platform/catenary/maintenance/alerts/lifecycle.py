@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 from sqlalchemy import (
     case,
@@ -17,6 +17,7 @@ from sqlalchemy.orm import Session, joinedload
 from catenary.domain import ALERT_STATUSES
 from catenary.errors import UserError
 from catenary.limits import LEVELS
+from catenary.plugins.types import AlertRecord
 from catenary.storage.database import session_scope
 from catenary.storage.models import (
     NAME_LENGTH,
@@ -31,7 +32,6 @@ if TYPE_CHECKING:
 __all__ = [
     "ACTIVE",
     "acknowledge_alert",
-    "alert_record",
     "announce_alerts",
     "iso_utc",
     "list_alerts",
@@ -134,17 +134,9 @@ def new_alerts_since(session: Session, after_id: int = 0) -> list[Alert]:
     return list(session.scalars(select(Alert).where(Alert.id > after_id).order_by(Alert.id)))
 
 
-def alert_record(alert: Alert) -> dict[str, Any]:
-    """An alert's stored fields, with its line and track codes (``line``, ``track``): what
-    the ``catenary_alert_raised`` hook receives."""
-    record = {c.key: getattr(alert, c.key) for c in Alert.__table__.columns}
-    record["line"], record["track"] = alert.track.line.code, alert.track.code
-    return record
-
-
 def announce_alerts(engine: Engine, registry: PluginRegistry, alert_ids: Sequence[int]) -> None:
     """Call every plugin's ``catenary_alert_raised`` hook with each committed alert of
-    ``alert_ids`` (``alert_record``), in the order they were raised."""
+    ``alert_ids`` (its ``AlertRecord``), in the order they were raised."""
     chunk = 5000  # bound the IN list (SQLite's limit on variables)
     for start in range(0, len(alert_ids), chunk):
         with session_scope(engine) as session:
@@ -154,7 +146,7 @@ def announce_alerts(engine: Engine, registry: PluginRegistry, alert_ids: Sequenc
                 .options(joinedload(Alert.track).joinedload(Track.line))
                 .order_by(Alert.id)
             )
-            records = [alert_record(alert) for alert in found]
+            records = [AlertRecord.of(alert) for alert in found]
         for record in records:
             registry.alert_raised(record)
 
