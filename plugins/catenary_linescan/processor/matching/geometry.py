@@ -34,11 +34,6 @@ class _Geometry:
             _geometries[key] = geometry
         return geometry
 
-    def depth(self, x: FloatArray, z: FloatArray) -> FloatArray:
-        return np.asarray(
-            self.axis[0] * (x - self.centre[0]) + self.axis[1] * (z - self.centre[1]), np.float64
-        )
-
     def project(self, x: FloatArray, z: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Ideal ``u`` and its gradient ``(du/dx, du/dz)`` at roof-frame points."""
         m = self.m
