@@ -11,11 +11,7 @@ import numpy as np
 from catenary_linescan.calibration import ResolutionTable
 from catenary_linescan.camera import LineScanCamera
 
-from .candidates import (
-    Candidates,
-    FloatArray,
-    IntArray,
-)
+from .candidates import Candidates, FloatArray, IntArray
 from .geometry import _gather, _Geometry, _line_coefficients, _undistort
 from .triangulate import Matches
 

@@ -9,10 +9,7 @@ import numpy as np
 
 from catenary_linescan.camera import LineScanCamera
 
-from .candidates import (
-    FloatArray,
-    IntArray,
-)
+from .candidates import FloatArray, IntArray
 
 
 @dataclass(frozen=True)

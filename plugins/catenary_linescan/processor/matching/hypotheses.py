@@ -10,9 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .candidates import (
-    FloatArray,
-)
+from .candidates import FloatArray
 from .config import MatchConfig
 from .geometry import _Geometry
 
@@ -316,7 +314,16 @@ def _pair_points(
         ok &= (pol_a * pol_b) >= 0
     keep = np.flatnonzero(ok)
     return _PairPoints(
-        *(v[keep] for v in (pair, scan, slot_a, slot_b, x, z, pa, qa, pb, qb)),
+        pair=pair[keep],
+        scan=scan[keep],
+        slot_a=slot_a[keep],
+        slot_b=slot_b[keep],
+        x=x[keep],
+        z=z[keep],
+        pa=pa[keep],
+        qa=qa[keep],
+        pb=pb[keep],
+        qb=qb[keep],
         polarity=np.where(pol_a != 0, pol_a, pol_b)[keep],
     )
 

@@ -12,11 +12,7 @@ from numpy.typing import NDArray
 
 from catenary_linescan.camera import LineScanCamera
 
-from .candidates import (
-    Candidates,
-    FloatArray,
-    IntArray,
-)
+from .candidates import Candidates, FloatArray, IntArray
 from .config import MatchConfig
 from .geometry import _Geometry, _undistort
 from .hypotheses import _covering_pairs, _enumerate, _Hypotheses
@@ -175,7 +171,7 @@ def _separate(matches: Matches, min_separation_mm: float) -> Matches:
     z = np.where(before, ranked.z_mm[index], np.nan)
     with np.errstate(invalid="ignore"):
         near = np.hypot(x - ranked.x_mm[:, np.newaxis], z - ranked.z_mm[:, np.newaxis])
-        too_close = (near < min_separation_mm).any(axis=1)
+        too_close = np.asarray((near < min_separation_mm).any(axis=1))
     # a point dropped does not suppress others (one level: pairs, the case that occurs);
     # ranked by scan first, the points kept are in scan order
     return ranked.take(~too_close)

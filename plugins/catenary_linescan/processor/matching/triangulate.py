@@ -11,12 +11,7 @@ from numpy.typing import NDArray
 from catenary_linescan.camera import LineScanCamera
 from catenary_linescan.triangulation import triangulate
 
-from .candidates import (
-    BoolArray,
-    Candidates,
-    FloatArray,
-    IntArray,
-)
+from .candidates import BoolArray, Candidates, FloatArray, IntArray
 from .config import MatchConfig
 from .geometry import _gather, _pinhole, _undistort
 
@@ -158,10 +153,11 @@ def _triangulate_matches(
         again = triangulate(pinholes, ideal[rows], sigma_px=sigma)
         result = replace(
             result,
-            **{
-                name: _put(getattr(result, name), rows, getattr(again, name))
-                for name in ("x_mm", "z_mm", "rms_reprojection_px", "sigma_x_mm", "sigma_z_mm")
-            },
+            x_mm=_put(result.x_mm, rows, again.x_mm),
+            z_mm=_put(result.z_mm, rows, again.z_mm),
+            rms_reprojection_px=_put(result.rms_reprojection_px, rows, again.rms_reprojection_px),
+            sigma_x_mm=_put(result.sigma_x_mm, rows, again.sigma_x_mm),
+            sigma_z_mm=_put(result.sigma_z_mm, rows, again.sigma_z_mm),
         )
     return Matches(
         scan=scan,
