@@ -114,6 +114,11 @@ def _enumerate(
 ) -> _Hypotheses:
     """Steps 2-3 of the package docstring for the given camera pairs.
 
+    One kernel (:func:`_hypotheses`) on a group of pairs, vectorised over the pairs as well
+    as the scans: all the pairs at once where the scans are few, one pair at a time above
+    ``_ENUMERATE_GROUP_ROWS`` scans times pairs. Either way the hypotheses come by pair,
+    then scan, then the pair's slots, and are the same.
+
     Parameters
     ----------
     geometry : sequence of _Geometry, length C
@@ -128,11 +133,6 @@ def _enumerate(
         Bound on ``|u|`` [px] for the sorted keys (:class:`_Block`).
     needed : int
         Cameras a hypothesis needs, merged silhouettes included.
-
-    One kernel (:func:`_hypotheses`) on a group of pairs, vectorised over the pairs as well
-    as the scans: with all the pairs at once where the scans are few, one pair at a time
-    above ``_ENUMERATE_GROUP_ROWS`` scans times pairs. The hypotheses come by pair, then
-    scan, then the pair's slots either way.
     """
     n, n_cameras, _ = u.shape
     if not pairs or n == 0:
