@@ -148,13 +148,12 @@ class _Block:
     """A block's candidates ready for the kernel: ``n`` scans, ``C`` cameras, ``K`` slots.
 
     ``coef`` holds each camera's ``M`` (rows 0-5), optical axis (6-7), centre (8-9) and
-    centre sigma (10): ``(11, C)``. ``p, q, k`` are the candidates' rays ``p x + q z = k``
-    (equation 10) and ``polarity`` their polarity, flat over ``(n, C, K)``; ``valid_rows``
-    the flat rows of the valid ones, ``valid_start`` the first of each ``(scan, camera)``
-    among them. The ``sorted_*`` fields are each camera's candidates sorted along each
-    scan's line, flat over ``(C, n, K)``: ``keys`` their centres clipped to ``±span``, NaN
-    at ``1.5 span``, offset by ``4 span`` per scan, so that one search per camera finds the
-    candidate nearest a query in its scan whatever the scans of the queries.
+    centre sigma (10): ``(11, C)``. Camera-major ``(C, n, K)``: the candidates' rays
+    ``p x + q z = k`` (equation 10), polarity, and which are candidates (``valid``). The
+    ``sorted_*`` fields are each camera's candidates sorted along each scan's line, flat
+    over ``(C, n, K)``: ``keys`` their centres clipped to ``±span``, NaN at ``1.5 span``,
+    offset by ``4 span`` per scan, so that one search per camera finds the candidate
+    nearest a query in its scan whatever the scans of the queries.
     """
 
     coef: FloatArray
@@ -162,10 +161,7 @@ class _Block:
     q: FloatArray
     k: FloatArray
     polarity: NDArray[np.int8]
-    valid: NDArray[np.bool_]  # (n, C, K)
-    count: NDArray[np.intp]  # (n, C) valid candidates
-    valid_rows: NDArray[np.intp]
-    valid_start: NDArray[np.intp]  # (n * C,)
+    valid: NDArray[np.bool_]
     keys: FloatArray
     sorted_u: FloatArray
     sorted_slot: NDArray[np.intp]
@@ -191,41 +187,39 @@ class _Block:
             dtype=np.float64,
         ).T
         coef = np.concatenate([coef, np.asarray(sigma, np.float64)[np.newaxis, :]])
-        m00, m01, m02, m10, m11, m12 = (v[np.newaxis, :, np.newaxis] for v in coef[:6])
-        valid = np.isfinite(u)
-        count = np.count_nonzero(valid, axis=2)
-        values = u.transpose(1, 0, 2)
+        m00, m01, m02, m10, m11, m12 = (v[:, np.newaxis, np.newaxis] for v in coef[:6])
+        values = np.ascontiguousarray(u.transpose(1, 0, 2))
+        by_camera = np.ascontiguousarray(polarity.transpose(1, 0, 2))
         by_position = np.where(np.isnan(values), np.inf, values)
         if np.all(by_position[:, :, 1:] >= by_position[:, :, :-1]):
             # the usual case (pad_candidates sorts along the line): the stable sort's order
             order = np.broadcast_to(np.arange(k), values.shape)
+            flat: slice | NDArray[np.intp] = slice(None)
         else:
             order = np.argsort(by_position, axis=2, kind="stable")
-        flat = (order + (np.arange(n_cameras * n) * k).reshape(n_cameras, n, 1)).ravel()
+            flat = (order + (np.arange(n_cameras * n) * k).reshape(n_cameras, n, 1)).ravel()
         ordered = values.ravel()[flat]
         offset = np.tile(np.repeat(np.arange(n, dtype=np.float64) * (4.0 * span), k), n_cameras)
         return cls(
             coef=coef,
-            p=(m00 - u * m10).ravel(),
-            q=(m01 - u * m11).ravel(),
-            k=(u * m12 - m02).ravel(),
-            polarity=polarity.ravel(),
-            valid=valid,
-            count=count,
-            valid_rows=np.flatnonzero(valid),  # by scan, camera and slot
-            valid_start=np.cumsum(count.ravel()) - count.ravel(),
+            p=m00 - values * m10,
+            q=m01 - values * m11,
+            k=values * m12 - m02,
+            polarity=by_camera,
+            valid=np.isfinite(values),
             keys=np.where(np.isnan(ordered), 1.5 * span, np.clip(ordered, -span, span)) + offset,
             sorted_u=ordered,
             sorted_slot=order.ravel(),
             sorted_left=silhouette[0].transpose(1, 0, 2).ravel()[flat],
             sorted_right=silhouette[1].transpose(1, 0, 2).ravel()[flat],
-            sorted_polarity=polarity.transpose(1, 0, 2).ravel()[flat],
+            sorted_polarity=by_camera.ravel()[flat],
             span=span,
         )
 
     @property
     def shape(self) -> tuple[int, int, int]:
-        n, c, k = self.valid.shape
+        """``(n, C, K)``."""
+        c, n, k = self.valid.shape
         return int(n), int(c), int(k)
 
 
@@ -277,27 +271,15 @@ def _pair_points(
     the same scan, triangulated (equations 9-10) and kept in front of both cameras, inside
     the plausible volume, of matching polarity. By pair, scan, ``a``'s slot and ``b``'s
     slot (the order of ``np.nonzero`` over ``K x K``)."""
-    n, n_cameras, k = block.shape
+    n, _, k = block.shape
     single = pair_a.shape[0] == 1
-    entry = np.flatnonzero(block.valid[:, pair_a, :].transpose(1, 0, 2))  # over (P, n, K)
-    pair = entry // (n * k)
-    scan = (entry // k) % n
-    slot_a = entry % k
-    reps = block.count[scan, pair_b[pair]]
-    starts = np.cumsum(reps) - reps
-    # np.repeat by counts copies element by element: the entry of each combination from a
-    # running count of the entries' starts instead
-    filled = np.flatnonzero(reps)
-    mark = np.zeros(int(starts[-1] + reps[-1]) if reps.shape[0] else 0, dtype=np.intp)
-    mark[starts[filled[1:]]] = 1
-    of = filled[np.cumsum(mark)]
-    pair, scan, slot_a = pair[of], scan[of], slot_a[of]
-    within = np.arange(of.shape[0]) - starts[of]
-    row_a = (scan * n_cameras + pair_a[pair]) * k + slot_a
-    row_b = block.valid_rows[block.valid_start[scan * n_cameras + pair_b[pair]] + within]
-    slot_b = row_b % k
-    pa, qa, ka = block.p[row_a], block.q[row_a], block.k[row_a]
-    pb, qb, kb = block.p[row_b], block.q[row_b], block.k[row_b]
+    # flat over (P, n, K): each pair's cameras a and b
+    rows_a, rows_b = _pairs_of(
+        block.valid[pair_a].reshape(-1, k), block.valid[pair_b].reshape(-1, k)
+    )
+    pa, qa, ka = (v[pair_a].ravel()[rows_a] for v in (block.p, block.q, block.k))
+    pb, qb, kb = (v[pair_b].ravel()[rows_b] for v in (block.p, block.q, block.k))
+    pair = np.zeros(rows_a.shape[0], np.intp) if single else rows_a // (n * k)
     ca = _per_row(block.coef[_AXIS_CENTRE, pair_a], pair, single)
     cb = _per_row(block.coef[_AXIS_CENTRE, pair_b], pair, single)
     x_lo, x_hi = config.x_range_mm
@@ -309,23 +291,47 @@ def _pair_points(
         ok = (x >= x_lo) & (x <= x_hi) & (z >= z_lo) & (z <= z_hi)
         ok &= ca[0] * (x - ca[2]) + ca[1] * (z - ca[3]) > 0.0
         ok &= cb[0] * (x - cb[2]) + cb[1] * (z - cb[3]) > 0.0
-    pol_a, pol_b = block.polarity[row_a], block.polarity[row_b]
+    pol_a = block.polarity[pair_a].ravel()[rows_a]
+    pol_b = block.polarity[pair_b].ravel()[rows_b]
     if config.match_polarity:
         ok &= (pol_a * pol_b) >= 0
     keep = np.flatnonzero(ok)
+    pair, rows_a, rows_b = pair[keep], rows_a[keep], rows_b[keep]
+    pol_a, pol_b = pol_a[keep], pol_b[keep]
+    row = rows_a // k  # the (pair, scan) of each point
     return _PairPoints(
-        pair=pair[keep],
-        scan=scan[keep],
-        slot_a=slot_a[keep],
-        slot_b=slot_b[keep],
+        pair=pair,
+        scan=row - pair * n,
+        slot_a=rows_a - row * k,
+        slot_b=rows_b - row * k,
         x=x[keep],
         z=z[keep],
         pa=pa[keep],
         qa=qa[keep],
         pb=pb[keep],
         qb=qb[keep],
-        polarity=np.where(pol_a != 0, pol_a, pol_b)[keep],
+        polarity=np.where(pol_a != 0, pol_a, pol_b),
     )
+
+
+def _pairs_of(
+    valid_a: NDArray[np.bool_], valid_b: NDArray[np.bool_]
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Flat indices of every combination of a valid candidate of ``valid_a`` with one of
+    ``valid_b`` in the same row (both ``(r, K)``), in the order of ``np.nonzero`` over
+    ``(row, slot_a, slot_b)``."""
+    k = valid_a.shape[1]
+    ia = np.flatnonzero(valid_a)
+    ib = np.flatnonzero(valid_b)
+    count_b = np.count_nonzero(valid_b, axis=1)
+    start_b = np.cumsum(count_b) - count_b
+    row_a = ia // k
+    reps = count_b[row_a]
+    rows_a = np.repeat(ia, reps)
+    ends = np.cumsum(reps)
+    within = np.arange(rows_a.shape[0]) - np.repeat(ends - reps, reps)
+    rows_b = ib[np.repeat(start_b[row_a], reps) + within]
+    return rows_a, rows_b
 
 
 def _hypotheses(
@@ -358,9 +364,12 @@ def _hypotheses(
     slot[rows, int(pair_b[0]) if single else pair_b[pair]] = points.slot_b
     hits = np.full(h, 2, dtype=np.int64)
     inside = np.full((h, n_cameras), -1, dtype=np.int64)
+    held_by = np.zeros(h, dtype=np.int64)  # cameras whose candidate's silhouette holds it
     chi2 = np.zeros(h)
     keys_of = block.keys.reshape(n_cameras, n * k)
     span = block.span
+    offset = scan * (4.0 * span)  # of the scan's keys
+    scan_start = scan * k  # the scan's first sorted position in a camera's keys
     with np.errstate(invalid="ignore", divide="ignore"):
         # gradients of u_a and u_b, for the uncertainty carried through the triangulation
         _, gax, gaz = _project(ca, x, z)
@@ -378,14 +387,14 @@ def _hypotheses(
             window = np.maximum(config.confirm_sigmas * np.sqrt(variance), config.floor_px)
             query = np.where(cc[6] * (x - cc[8]) + cc[7] * (z - cc[9]) > 0.0, uc, np.nan)
             # the nearest candidate in camera c's row of the scan
-            q = np.where(np.isnan(query), 0.0, np.clip(query, -span, span)) + scan * (4.0 * span)
+            q = np.where(np.isnan(query), 0.0, np.clip(query, -span, span)) + offset
             position = np.empty(h, dtype=np.intp)
             for p, c in enumerate(others[:, j].tolist()):
                 first, last = bounds[p], bounds[p + 1]
                 position[first:last] = np.searchsorted(keys_of[c], q[first:last]) + c * n * k
             # q lies within its row's keys' band and 2.5 spans clear of the others': the
             # position is in [row_start, row_start + k]
-            row_start = (cam_c * n + scan) * k
+            row_start = scan_start + cam_c * (n * k)
             lower = np.maximum(position - 1, row_start)
             upper = np.minimum(position, row_start + (k - 1))
             keys = block.keys
@@ -403,8 +412,10 @@ def _hypotheses(
             slot[rows, cam_c] = np.where(confirmed, found, -1)
             hits += confirmed
             chi2 += np.where(confirmed, residual * residual / variance, 0.0)
-            inside[rows, cam_c] = np.where(held & ~confirmed, found, -1)
+            held &= ~confirmed
+            inside[rows, cam_c] = np.where(held, found, -1)
+            held_by += held
     # with two cameras confirming, merged silhouettes may still bring it to ``needed``
-    possible = hits + (inside >= 0).sum(axis=1) if config.support_merged else hits
+    possible = hits + held_by if config.support_merged else hits
     keep = np.flatnonzero(possible >= needed)
     return _Hypotheses(scan[keep], slot[keep], hits[keep], inside[keep], chi2[keep])
