@@ -8,7 +8,8 @@ view, a blind camera, missed detections, ghosts, twelve wires, merged silhouette
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import itertools
+from dataclasses import dataclass, fields
 
 import numpy as np
 import pytest
@@ -21,9 +22,11 @@ from catenary_linescan.processor.matching import (
     camera_sigmas_px,
     covering_pairs,
     face_widths_mm,
+    hypotheses,
     match,
     pad_candidates,
 )
+from catenary_linescan.processor.matching.geometry import _Geometry, _undistort
 from catenary_linescan.simulator import DEMO_RIG_PATH, Simulation, load_rig, parse_settings
 from catenary_linescan.simulator.simulation import Chunk
 
@@ -445,3 +448,54 @@ def test_covering_pairs() -> None:
     assert pairs == [(0, 3), (1, 2)]  # the widest baseline first; every triple holds one
     assert covering_pairs(centres, 2) == [(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)]
     assert len(covering_pairs(centres[:3], 3)) == 1
+
+
+def test_enumeration_is_the_same_by_pair_and_grouped(
+    overlap_chunk, rig_cameras, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Both sides of ``_ENUMERATE_GROUP_ROWS`` (every camera pair at once, or one pair at a
+    time) give the same hypotheses, bit for bit, in the same order: on wires, ghosts and
+    candidates of either polarity, for every pair and the covering pairs, two and three
+    cameras needed."""
+    names, cameras = rig_cameras
+    rng = np.random.default_rng(8)
+    features, _ = features_from_truth(overlap_chunk, names, rng)
+    n = overlap_chunk.scans
+    for c in range(4):
+        s = np.repeat(np.arange(n), 2)
+        u = rng.uniform(50.0, 4040.0, s.shape)
+        nan = np.full(s.shape, np.nan)
+        polarity = rng.integers(-1, 2, s.shape).astype(np.int8)
+        ghosts = Features(s, u, u - 8, u + 8, nan, nan, np.full(s.shape, 0.1), polarity)
+        features[c] = features[c].add(ghosts)
+    candidates = pad_candidates(features, n)
+    ideal = [
+        np.stack([_undistort(cam, v[:, c, :]) for c, cam in enumerate(cameras)], axis=1)
+        for v in (candidates.centre_px, candidates.left_px, candidates.right_px)
+    ]
+    geometry = [_Geometry.of(camera) for camera in cameras]
+    every_pair = list(itertools.combinations(range(4), 2))
+    covering = covering_pairs([g.centre for g in geometry], 3)
+    for pairs, needed in ((every_pair, 2), (every_pair, 3), (covering, 3)):
+        results = []
+        for rows in (0, 10**9):  # one pair at a time; every pair at once
+            monkeypatch.setattr(hypotheses, "_ENUMERATE_GROUP_ROWS", rows)
+            results.append(
+                hypotheses._enumerate(
+                    geometry,
+                    ideal[0],
+                    (ideal[1], ideal[2]),
+                    candidates.polarity,
+                    sigma(),
+                    MatchConfig(),
+                    4.0 * 4096,
+                    needed,
+                    pairs,
+                )
+            )
+        by_pair, grouped = results
+        assert by_pair.scan.shape[0] > 4 * n
+        for field in fields(by_pair):
+            a, b = getattr(by_pair, field.name), getattr(grouped, field.name)
+            assert a.dtype == b.dtype, field.name
+            np.testing.assert_array_equal(a, b, err_msg=field.name, strict=True)

@@ -77,6 +77,7 @@ import itertools
 import math
 import sys
 from dataclasses import dataclass, fields
+from typing import Any
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
@@ -363,7 +364,7 @@ def _noise_sigma(data: np.ndarray, samples: int, floor: float) -> NDArray[np.flo
     step = max(1, (width - 1) // samples)
     count = min(samples, (width - 2) // step + 1)
     wide = np.int16 if data.dtype == np.uint8 else np.int32
-    diff = data[:, 1 : 1 + count * step : step].astype(wide)
+    diff: NDArray[np.signedinteger[Any]] = data[:, 1 : 1 + count * step : step].astype(wide)
     diff -= data[:, 0 : count * step : step]
     np.abs(diff, out=diff)
     diff.sort(axis=1)
@@ -378,7 +379,8 @@ def _noise_sigma(data: np.ndarray, samples: int, floor: float) -> NDArray[np.flo
     width_class = np.where(m < 0.5, np.float32(0.5), np.float32(1.0))
     grouped = lower + width_class * (np.float32(0.5 * count) - below) / at
     sigma = np.float32(1.4826 / math.sqrt(2.0)) * grouped
-    return np.maximum(sigma, np.float32(floor))
+    floored: NDArray[np.float32] = np.maximum(sigma, np.float32(floor))
+    return floored
 
 
 _LOW_BYTES = np.uint64(0x00FF00FF00FF00FF)
@@ -400,7 +402,8 @@ def _bin_sums(data: np.ndarray, b: int) -> NDArray[np.float32]:
     per_word = 8 // data.dtype.itemsize
     if not (width % per_word == 0 and b % per_word == 0 and data.flags.c_contiguous):
         x = data[:, : nb * b].astype(np.float32)
-        return x.reshape(r, nb, b).sum(axis=2)
+        summed: NDArray[np.float32] = x.reshape(r, nb, b).sum(axis=2)
+        return summed
     out = np.empty((r, nb), dtype=np.float32)
     k = b // per_word
     rows = max(1, _CACHE_BYTES // (width * data.dtype.itemsize))
@@ -559,13 +562,15 @@ def _float32_below(x: FloatArray) -> NDArray[np.float32]:
 
 def _take(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
     """``a[i, idx[i]]`` for a 2-D C-contiguous ``a`` and an index per row."""
-    return a.ravel()[np.arange(a.shape[0]) * a.shape[1] + idx]
+    taken: np.ndarray = a.ravel()[np.arange(a.shape[0]) * a.shape[1] + idx]
+    return taken
 
 
 def _rows(a: np.ndarray, first: np.ndarray, count: int) -> np.ndarray:
     """``a[i, first[i] : first[i] + count]`` stacked ``(m, count)`` for a 2-D ``a`` (the
     slices must lie within the rows)."""
-    return sliding_window_view(a, count, axis=1)[np.arange(a.shape[0]), first]
+    rows: np.ndarray = sliding_window_view(a, count, axis=1)[np.arange(a.shape[0]), first]
+    return rows
 
 
 def _windows(data: np.ndarray, row: IntArray, first: IntArray, count: int) -> np.ndarray:
@@ -574,9 +579,10 @@ def _windows(data: np.ndarray, row: IntArray, first: IntArray, count: int) -> np
     width = data.shape[1]
     if width < count:
         cols = np.clip(first[:, None] + np.arange(count), 0, width - 1)
-        return data[row[:, None], cols]
+        gathered: np.ndarray = data[row[:, None], cols]
+        return gathered
     at = np.clip(first, 0, width - count)
-    out = sliding_window_view(data, count, axis=1)[row, at]
+    out: np.ndarray = sliding_window_view(data, count, axis=1)[row, at]
     ends = np.flatnonzero(at != first)
     if ends.shape[0]:
         cols = np.clip(first[ends, None] + np.arange(count), 0, width - 1)
@@ -612,7 +618,8 @@ def _edge(d: np.ndarray, rows: np.ndarray, k: np.ndarray, sign: np.ndarray) -> F
     at = rows * width + k + np.arange(-1, 2)[:, None]
     three = d.ravel()[at].astype(np.float64)  # (3, m)
     three *= sign
-    return k + 0.5 + _extremum_offset(three[0], three[1], three[2])
+    position: FloatArray = k + 0.5 + _extremum_offset(three[0], three[1], three[2])
+    return position
 
 
 def _sharp(
@@ -625,7 +632,8 @@ def _sharp(
     peak = flat[at + k] * sign
     before = flat[at + np.clip(k - reach, 0, width - 1)] * sign
     after = flat[at + np.clip(k + reach, 0, width - 1)] * sign
-    return (peak > t) & (np.maximum(before, after) < (1.0 - _PROMINENCE) * peak)
+    sharp: np.ndarray = (peak > t) & (np.maximum(before, after) < (1.0 - _PROMINENCE) * peak)
+    return sharp
 
 
 def _boundary(dev: np.ndarray, k0: np.ndarray, direction: int) -> FloatArray:
@@ -648,9 +656,10 @@ def _boundary(dev: np.ndarray, k0: np.ndarray, direction: int) -> FloatArray:
     inside = seg[reach, cols]
     outside = seg[reach - 1, cols]
     frac = np.clip((level - outside) / np.maximum(inside - outside, 1e-6), 0.0, 1.0)
-    if direction > 0:
-        return first + reach - 1 + frac
-    return first + _EDGE_PX + 1 - (reach - 1) - frac
+    boundary: FloatArray = (
+        first + reach - 1 + frac if direction > 0 else first + _EDGE_PX + 1 - (reach - 1) - frac
+    )
+    return boundary
 
 
 def _candidates(
@@ -763,7 +772,8 @@ def _dark_joins(
     heads = np.flatnonzero(head)
     tails = np.append(heads[1:] - 1, row.shape[0] - 1)
     fits = ((stop[tails] - start[heads]) * b <= widest)[group]
-    return join & fits[1:]
+    joins: NDArray[np.bool_] = join & fits[1:]
+    return joins
 
 
 @dataclass
@@ -795,44 +805,142 @@ def _fine(
 ) -> _Found:
     """Boundaries and faces of candidates on pixel windows (module docstring, steps 3-6).
 
-    Values are worked on as four times the ``[1, 2, 1] / 4`` smoothed line (``xs4``) and its
-    first difference (``d4``), flat: window ``i`` pixel ``j`` at ``i * stride + j``.
+    ``cand`` is ``(row, start, stop, gap_l, gap_r)`` of :func:`_candidates`, each ``(m,)``.
     """
     row, start, stop, gap_l, gap_r = cand
+    windows = _pixel_windows(data, row, start, stop, sigma, cfg, full)
+    sky = _sky(windows, gap_l, gap_r)
+    contrast = _contrast(windows, sky, cfg)
+    boundaries = _boundaries(windows, sky, contrast, cfg)
+    sel = np.flatnonzero(boundaries.ok)
+    if sel.shape[0] == 0:
+        return _Found.empty()
+    wires = _kept_wires(windows, sky, contrast, boundaries, sel, cfg)
+    edges = _face_edges(wires, cfg)
+    faces = _one_sided_faces(wires, edges)
+    fitted = _near_silhouette_fit(wires, faces)
+    # a wire whose sides are too dark to be seen (at night) is narrow but has its face
+    keep = boundaries.wide_enough[sel] | fitted.has_face
+    sel = sel[keep]
+    has_face = fitted.has_face[keep]
+    offset = windows.first_px[sel].astype(np.float64)
+    nan = np.float64(np.nan)
+    return _Found(
+        row=row[sel],
+        start=start[sel],
+        left=fitted.left[keep] + offset,
+        right=fitted.right[keep] + offset,
+        face_left=np.where(has_face, fitted.face_left[keep] + offset, nan),
+        face_right=np.where(has_face, fitted.face_right[keep] + offset, nan),
+        peak_dev=contrast.peak_dev[sel] / 4.0,
+        polarity=np.where(contrast.mixed[sel], 0, contrast.polarity[sel]).astype(np.int8),
+    )
+
+
+@dataclass(frozen=True)
+class _Windows:
+    """Pixel windows around ``m`` candidates, as four times the ``[1, 2, 1] / 4`` smoothed line
+    (``xs4``), flat: window ``i`` pixel ``j`` at ``i * stride + j``, window pixel ``j`` being
+    line pixel ``first_px[i] + j``. A window runs ``margin`` pixels either side of its run,
+    ``own`` pixels in all, and is padded with line pixels to the longest."""
+
+    xs4: NDArray[np.float32]  # (m * stride,)
+    stride: int
+    margin: int
+    base: IntArray  # (m,) each window's first index in xs4: i * stride
+    run_px: IntArray  # (m,) the run's length [px]
+    own: IntArray  # (m,) the window's own length [px]
+    first_px: IntArray  # (m,)
+    sigma: NDArray[np.float32]  # (m,) the line's pixel noise [DN]
+    s4: NDArray[np.float32]  # (m,) the noise of xs4
+    saturated: NDArray[np.bool_]  # (m,) a pixel of the window at full scale
+
+
+def _pixel_windows(
+    data: np.ndarray,
+    row: IntArray,
+    start: IntArray,
+    stop: IntArray,
+    sigma: NDArray[np.float32],
+    cfg: FeatureConfig,
+    full: float,
+) -> _Windows:
+    """The smoothed pixel windows of the candidate runs ``[start, stop)`` [bins] of lines
+    ``row`` ``(m,)``; ``sigma`` is every line's noise ``(r,)``, ``full`` the full scale."""
     b = cfg.bin_px
     m = row.shape[0]
     margin = b + 2 * cfg.sharp_px + _SKY_PX
     run_px = (stop - start) * b
-    own = run_px + 2 * margin  # each candidate's own window
-    length = int(own.max())  # windows are padded with line pixels to the longest
-    stride = length + 2
-    first_px = start * b - margin  # window pixel j is line pixel first_px + j
+    own = run_px + 2 * margin
+    stride = int(own.max()) + 2
+    first_px = start * b - margin
     raw = _windows(data, row, first_px - 1, stride).ravel()  # pixel j at i * stride + j + 1
     base = np.arange(m) * stride
     saturated = np.maximum.reduceat(raw, base) >= full
-    raw = raw.astype(np.float32)
-    pairs = raw[:-1] + raw[1:]
+    pixels = raw.astype(np.float32)
+    pairs = pixels[:-1] + pixels[1:]
     xs4 = np.empty(m * stride, dtype=np.float32)
-    np.add(pairs[:-1], pairs[1:], out=xs4[:-2])  # xs4[i * stride + j]: pixel j, j < length
+    np.add(pairs[:-1], pairs[1:], out=xs4[:-2])  # xs4[i * stride + j]: pixel j, j < own
     xs4[-2:] = 0.0
     s = sigma[row]
-    s4 = s * np.float32(4.0 * math.sqrt(6.0 / 16.0))  # noise of xs4
+    s4 = s * np.float32(4.0 * math.sqrt(6.0 / 16.0))
+    return _Windows(xs4, stride, margin, base, run_px, own, first_px, s, s4, saturated)
 
-    # the sky on either side: at the window's ends, or clear of a nearer neighbour
-    at_l = np.clip(gap_l - first_px, 0, margin - _SKY_PX)
-    at_r = np.clip(gap_r - _SKY_PX - first_px, own - margin, own - _SKY_PX)
+
+@dataclass(frozen=True)
+class _Sky:
+    """The sky beside each of ``m`` candidates: ``_SKY_PX`` pixels from window positions
+    ``at_l`` and ``at_r`` on, and the ramp between their means (xs4 units)."""
+
+    at_l: IntArray  # (m,)
+    at_r: IntArray  # (m,)
+    pixels: NDArray[np.float32]  # (_SKY_PX, 2m): the left sides, then the right sides
+    level: NDArray[np.float32]  # (2m,) their means
+    slope: NDArray[np.float32]  # (m,) the ramp's slope per window pixel
+    ramp0: FloatArray  # (m,) the ramp at window pixel 0
+
+    @property
+    def left(self) -> NDArray[np.float32]:
+        return self.level[: self.slope.shape[0]]
+
+    @property
+    def right(self) -> NDArray[np.float32]:
+        return self.level[self.slope.shape[0] :]
+
+
+def _sky(windows: _Windows, gap_l: IntArray, gap_r: IntArray) -> _Sky:
+    """Step 3's sky on either side: at the window's ends, or clear of a nearer neighbour
+    (``gap_l``, ``gap_r`` [line px], ``(m,)``)."""
+    w = windows
+    margin, own = w.margin, w.own
+    at_l = np.clip(gap_l - w.first_px, 0, margin - _SKY_PX)
+    at_r = np.clip(gap_r - _SKY_PX - w.first_px, own - margin, own - _SKY_PX)
     quad = np.arange(_SKY_PX)[:, None]
-    sky_px = xs4[quad + np.concatenate([base + at_l, base + at_r])]  # (_SKY_PX, 2m)
-    sky_lr = sky_px.mean(axis=0)
-    sky_l, sky_r = sky_lr[:m], sky_lr[m:]
-    slope = (sky_r - sky_l) / (at_r - at_l).astype(np.float32)
-    ramp0 = sky_l - slope * (at_l + np.float32(0.5 * (_SKY_PX - 1)))  # the sky at pixel 0
+    pixels = w.xs4[quad + np.concatenate([w.base + at_l, w.base + at_r])]  # (_SKY_PX, 2m)
+    level = pixels.mean(axis=0)
+    m = at_l.shape[0]
+    slope = (level[m:] - level[:m]) / (at_r - at_l).astype(np.float32)
+    ramp0 = level[:m] - slope * (at_l + np.float32(0.5 * (_SKY_PX - 1)))
+    return _Sky(at_l, at_r, pixels, level, slope, ramp0)
 
-    # peak deviation over the run: polarity and contrast
-    bounds = np.stack([base + margin, base + margin + run_px], axis=1).ravel()
-    top = np.maximum.reduceat(xs4, bounds)[::2]
-    bottom = np.minimum.reduceat(xs4, bounds)[::2]
-    sky_mid = ramp0 + slope * (margin + 0.5 * run_px)
+
+@dataclass(frozen=True)
+class _Contrast:
+    """Each candidate's extreme deviation from the sky over its run, ``(m,)`` each."""
+
+    peak_dev: FloatArray  # signed [xs4 units]: positive brighter than the sky
+    polarity: NDArray[np.int8]  # +1 bright, -1 dark
+    mixed: NDArray[np.bool_]  # as bright as dark somewhere: the polarity is unknown
+    strong: NDArray[np.bool_]  # passes detect_k and detect_rel at pixel level
+
+
+def _contrast(windows: _Windows, sky: _Sky, cfg: FeatureConfig) -> _Contrast:
+    """Step 3's polarity and contrast: the run's peak deviation from the sky's ramp."""
+    w = windows
+    bounds = np.stack([w.base + w.margin, w.base + w.margin + w.run_px], axis=1).ravel()
+    top = np.maximum.reduceat(w.xs4, bounds)[::2]
+    bottom = np.minimum.reduceat(w.xs4, bounds)[::2]
+    sky_mid = sky.ramp0 + sky.slope * (w.margin + 0.5 * w.run_px)
     bright = top - sky_mid
     dark = sky_mid - bottom
     polarity = np.where(bright >= dark, 1, -1).astype(np.int8)
@@ -840,37 +948,57 @@ def _fine(
     # dark sides): the polarity is unknown
     mixed = np.minimum(bright, dark) > _MIXED * np.maximum(bright, dark)
     peak_dev = np.where(bright >= dark, bright, -dark)
-    contrast_floor = np.maximum(cfg.detect_k * s4, cfg.detect_rel * np.maximum(sky_l, sky_r))
-    strong = np.abs(peak_dev) > contrast_floor
+    floor = np.maximum(cfg.detect_k * w.s4, cfg.detect_rel * np.maximum(sky.left, sky.right))
+    return _Contrast(peak_dev, polarity, mixed, np.abs(peak_dev) > floor)
 
-    # boundaries: transposed sub-windows ``(count, 2m)`` running from the sky beside each end
-    # of the run to two bins inside it (left ends, then right ends reversed)
-    level = np.maximum(cfg.boundary_k * s4, cfg.boundary_rel * np.abs(peak_dev))
+
+@dataclass(frozen=True)
+class _Boundaries:
+    """The wire boundaries of ``m`` candidates [window px, sub-pixel] and which are wires."""
+
+    left: FloatArray  # (m,)
+    right: FloatArray  # (m,)
+    ok: NDArray[np.bool_]  # (m,) strong, unsaturated, both found, no wider than a wire
+    wide_enough: NDArray[np.bool_]  # (m,) at least the narrowest wire wide
+
+
+def _boundaries(
+    windows: _Windows, sky: _Sky, contrast: _Contrast, cfg: FeatureConfig
+) -> _Boundaries:
+    """Step 3's boundaries, on transposed sub-windows ``(count, 2m)`` running from the sky
+    beside each end of the run to two bins inside it (left ends, then right ends reversed):
+    where the deviation from the sky's ramp crosses half its level just inside the outermost
+    significant pixel."""
+    w = windows
+    m = w.own.shape[0]
+    peak = np.abs(contrast.peak_dev)
+    level = np.maximum(cfg.boundary_k * w.s4, cfg.boundary_rel * peak)
     # and above the sky's texture: the largest deviation of each side's sky pixels from the
     # ramp (which runs through their mean): what the ramp does not model beside the wire
-    sky_px -= sky_lr
-    sky_px -= np.concatenate([slope, slope]) * (quad - np.float32(0.5 * (_SKY_PX - 1)))
+    quad = np.arange(_SKY_PX)[:, None]
+    off_ramp = sky.pixels - sky.level
+    off_ramp -= np.concatenate([sky.slope, sky.slope]) * (quad - np.float32(0.5 * (_SKY_PX - 1)))
     # (more than ``detect_rel`` of the wire's contrast is not the sky's texture but a
     # neighbour's edge reaching into the sky pixels: the level is capped there)
-    texture = np.abs(sky_px).max(axis=0)
+    texture = np.abs(off_ramp).max(axis=0)
     texture *= np.float32(_TEXTURE)
-    np.minimum(texture, np.float32(cfg.detect_rel) * np.abs(np.tile(peak_dev, 2)), out=texture)
+    np.minimum(texture, np.float32(cfg.detect_rel) * np.tile(peak, 2), out=texture)
     level2 = np.maximum(np.concatenate([level, level]), texture)
-    count = margin + 2 * b
+    count = w.margin + 2 * cfg.bin_px
     k = np.arange(count)[:, None]
     dev = np.empty((count, 2 * m), dtype=np.float32)
-    dev[:, :m] = xs4.reshape(m, stride)[:, :count].T
-    dev[:, m:] = xs4[(base + own - 1) - k]
+    dev[:, :m] = w.xs4.reshape(m, w.stride)[:, :count].T
+    dev[:, m:] = w.xs4[(w.base + w.own - 1) - k]
     # the sky's ramp at each pixel, in float64 (as the deviations have always been taken)
     k_px = k.astype(np.float64)
     ramp = np.empty((count, 2 * m))
     ramp[:, :m] = k_px
-    np.subtract((own - 1).astype(np.float64), k_px, out=ramp[:, m:])  # the pixels, then the ramp
-    ramp *= np.tile(slope, 2)
-    ramp += np.tile(ramp0, 2)
+    np.subtract((w.own - 1).astype(np.float64), k_px, out=ramp[:, m:])  # the pixels, then
+    ramp *= np.tile(sky.slope, 2)  # the ramp
+    ramp += np.tile(sky.ramp0, 2)
     np.subtract(dev, ramp, out=dev)
     np.abs(dev, out=dev)
-    first_k = np.concatenate([at_l + _SKY_PX, own - at_r])  # the search starts past the sky
+    first_k = np.concatenate([sky.at_l + _SKY_PX, w.own - sky.at_r])  # past the sky
     above = dev > _float32_below(level2)
     above &= k >= first_k
     # a significant pixel starts the wire only when the next one is significant too: one
@@ -880,34 +1008,87 @@ def _fine(
     k0 = count - (above * weight).max(axis=0).astype(np.intp)  # the first above (count: none)
     inside = (k0 >= first_k) & (k0 < count)
     edge = _boundary(dev, np.minimum(k0, count - 1), +1)
-    left_w = edge[:m]
-    right_w = own - 1 - edge[m:]
-    inside = inside[:m] & inside[m:]
-    wire_width = right_w - left_w
-    ok = strong & ~saturated & inside & (wire_width <= cfg.max_width) & (wire_width > 0)
-    wide_enough = wire_width >= cfg.min_width
+    left = edge[:m]
+    right = w.own - 1 - edge[m:]
+    width = right - left
+    ok = contrast.strong & ~w.saturated & inside[:m] & inside[m:]
+    ok &= (width <= cfg.max_width) & (width > 0)
+    return _Boundaries(left, right, ok, width >= cfg.min_width)
 
-    # -- wear face, on the candidates still standing ------------------------------------
-    sel = np.flatnonzero(ok)
-    if sel.shape[0] == 0:
-        return _Found.empty()
-    xs_s = xs4.reshape(m, stride)[sel]
-    d4 = np.empty_like(xs_s)
-    np.subtract(xs_s.ravel()[1:], xs_s.ravel()[:-1], out=d4.ravel()[:-1])
+
+@dataclass(frozen=True)
+class _Wires:
+    """The ``s`` candidates still standing after step 3, on their own rows: the windows
+    ``xs`` ``(s, stride)`` and their first difference ``d4`` (``d4[i, j]`` sits at window
+    position ``j + 0.5``), the boundaries and the sky beside them."""
+
+    xs: NDArray[np.float32]  # (s, stride)
+    d4: NDArray[np.float32]  # (s, stride)
+    left: FloatArray  # (s,) boundaries [window px]
+    right: FloatArray  # (s,)
+    lb: IntArray  # (s,) the pixels at or outside them
+    rb: IntArray  # (s,)
+    top_k: IntArray  # (s,) the last pixel a face edge may take
+    dark: NDArray[np.bool_]  # (s,) a dark silhouette
+    t_face: NDArray[np.float32]  # (s,) a face edge's least first difference
+    sky_l: NDArray[np.float32]  # (s,) the sky's level beside the wire
+    sky_r: NDArray[np.float32]  # (s,)
+
+
+def _kept_wires(
+    windows: _Windows,
+    sky: _Sky,
+    contrast: _Contrast,
+    boundaries: _Boundaries,
+    sel: IntArray,
+    cfg: FeatureConfig,
+) -> _Wires:
+    """The candidates ``sel`` (those that passed step 3) for the face search."""
+    w = windows
+    xs = w.xs4.reshape(-1, w.stride)[sel]
+    d4 = np.empty_like(xs)
+    np.subtract(xs.ravel()[1:], xs.ravel()[:-1], out=d4.ravel()[:-1])
     d4.ravel()[-1] = 0.0
-    # d4[i, j] sits at window position j + 0.5 (j < length - 1)
-    left_s, right_s = left_w[sel], right_w[sel]
-    dark_s = polarity[sel] < 0
-    t_face = cfg.face_k * 2.0 * s[sel]  # noise of d4: 2 sigma
-    lb = np.floor(left_s).astype(np.intp)
-    rb = np.ceil(right_s).astype(np.intp)
-    top_k = own[sel] - 3
-    zone_lo = np.clip(np.where(dark_s, lb + _GUARD_PX, lb - 2), 1, top_k)
-    zone_hi = np.clip(np.where(dark_s, rb - _GUARD_PX - 1, rb + 1), 1, top_k)
+    left, right = boundaries.left[sel], boundaries.right[sel]
+    return _Wires(
+        xs=xs,
+        d4=d4,
+        left=left,
+        right=right,
+        lb=np.floor(left).astype(np.intp),
+        rb=np.ceil(right).astype(np.intp),
+        top_k=w.own[sel] - 3,
+        dark=contrast.polarity[sel] < 0,
+        t_face=cfg.face_k * 2.0 * w.sigma[sel],  # noise of d4: 2 sigma
+        sky_l=sky.left[sel],
+        sky_r=sky.right[sel],
+    )
+
+
+@dataclass(frozen=True)
+class _FaceEdges:
+    """The strongest rising and falling first difference inside each wire, ``(s,)`` each:
+    where (``rise_k``, ``fall_k``), whether significant and sharp, and sub-pixel [window px]."""
+
+    rise_k: IntArray
+    fall_k: IntArray
+    rise_ok: NDArray[np.bool_]
+    fall_ok: NDArray[np.bool_]
+    left: FloatArray
+    right: FloatArray
+
+
+def _face_edges(wires: _Wires, cfg: FeatureConfig) -> _FaceEdges:
+    """Step 4: the face's edges, searched over the whole wire for a bright object and inside
+    the boundaries (clear by ``_GUARD_PX``) for a dark silhouette; the falling edge after the
+    rising one."""
+    d4 = wires.d4
+    lb, rb, top_k = wires.lb, wires.rb, wires.top_k
+    ms, stride = d4.shape
+    zone_lo = np.clip(np.where(wires.dark, lb + _GUARD_PX, lb - 2), 1, top_k)
+    zone_hi = np.clip(np.where(wires.dark, rb - _GUARD_PX - 1, rb + 1), 1, top_k)
     # the zone's first differences, gathered from its start (dz[:, j] = d4[:, at + j])
-    ms = sel.shape[0]
     wide = min(stride, max(1, int((zone_hi - zone_lo).max()) + 1))
-    cols = np.arange(stride, dtype=np.int16)[None, :]
     offsets = np.arange(wide, dtype=np.int16)[None, :]
     at = np.clip(zone_lo, 0, stride - wide)
     dz = _rows(d4, at, wide)
@@ -916,89 +1097,109 @@ def _fine(
     )
     k1 = at + np.argmax(dz, axis=1)
     k2 = at + np.argmin(dz, axis=1)
-    rows2 = np.tile(np.arange(ms), 2)
+    rows = np.arange(ms)
     sign2 = np.repeat(np.array([1.0, -1.0], dtype=np.float32), ms)
-    t2 = np.tile(t_face, 2)
     reach = cfg.sharp_px
-    rise_ok = (zone_hi >= zone_lo) & _sharp(d4, rows2[:ms], k1, sign2[:ms], t_face, reach)
+    rise_ok = (zone_hi >= zone_lo) & _sharp(d4, rows, k1, sign2[:ms], wires.t_face, reach)
     # the falling edge after the rising one (anywhere in the zone when there is none)
     again = np.flatnonzero(rise_ok & (k2 <= k1))
     if again.shape[0]:
         later = offsets > (k1[again] - at[again])[:, None]
         k2[again] = at[again] + np.argmin(dz[again] * later, axis=1)
-    fall_ok = _sharp(d4, rows2[ms:], k2, sign2[ms:], t2[ms:], reach) & (~rise_ok | (k2 > k1))
-    both = _edge(d4, rows2, np.concatenate([k1, k2]), sign2)
-    face_left = both[:ms]
-    face_right = both[ms:]
-    # A dark silhouette's face may reach the silhouette on one side: then it has one inner
-    # edge and the wire is as bright as the face, not as dark as its sides, just inside
-    # that boundary; the face takes the boundary's edge.
-    one = np.flatnonzero(dark_s & (rise_ok ^ fall_ok))
-    one_sided = np.zeros(sel.shape[0], dtype=bool)
-    took_right = np.zeros(sel.shape[0], dtype=bool)  # the face's right edge is the boundary's
+    fall_ok = _sharp(d4, rows, k2, sign2[ms:], wires.t_face, reach) & (~rise_ok | (k2 > k1))
+    both = _edge(d4, np.tile(rows, 2), np.concatenate([k1, k2]), sign2)
+    return _FaceEdges(k1, k2, rise_ok, fall_ok, both[:ms], both[ms:])
+
+
+@dataclass(frozen=True)
+class _Faces:
+    """Each wire's face edges [window px] and whether it has a face, ``(s,)`` each; a
+    one-sided face took the boundary's edge on one side (the right one: ``took_right``)."""
+
+    left: FloatArray
+    right: FloatArray
+    found: NDArray[np.bool_]
+    one_sided: NDArray[np.bool_]
+    took_right: NDArray[np.bool_]
+
+
+def _one_sided_faces(wires: _Wires, edges: _FaceEdges) -> _Faces:
+    """Step 4's one-sided faces: a dark silhouette's face may reach the silhouette on one
+    side. Then it has one inner edge, and the wire is as bright as the face, not as dark as
+    its sides, just inside that boundary; the face takes the boundary's edge."""
+    rise_ok, fall_ok = edges.rise_ok, edges.fall_ok
+    face_left, face_right = edges.left, edges.right
+    ms, stride = wires.xs.shape
+    one = np.flatnonzero(wires.dark & (rise_ok ^ fall_ok))
+    one_sided = np.zeros(ms, dtype=bool)
+    took_right = np.zeros(ms, dtype=bool)
     if one.shape[0]:
+        lb, rb, top_k = wires.lb[one], wires.rb[one], wires.top_k[one]
         rising = rise_ok[one]
-        xs_one = xs_s[one]
-        interior = (cols > lb[one, None]) & (cols < rb[one, None])
+        xs_one = wires.xs[one]
+        cols = np.arange(stride, dtype=np.int16)[None, :]
+        interior = (cols > lb[:, None]) & (cols < rb[:, None])
         darkest = np.where(interior, xs_one, np.inf).min(axis=1)
-        edge_k = np.where(rising, k1[one], k2[one])
+        edge_k = np.where(rising, edges.rise_k[one], edges.fall_k[one])
         face_level = np.maximum(
-            _take(xs_one, np.clip(edge_k + np.where(rising, 2, -1), 0, top_k[one])),
-            _take(xs_one, np.clip(edge_k + np.where(rising, 3, -2), 0, top_k[one])),
+            _take(xs_one, np.clip(edge_k + np.where(rising, 2, -1), 0, top_k)),
+            _take(xs_one, np.clip(edge_k + np.where(rising, 3, -2), 0, top_k)),
         )
-        inner = _take(xs_one, np.clip(np.where(rising, rb[one] - 3, lb[one] + 3), 0, top_k[one]))
+        inner = _take(xs_one, np.clip(np.where(rising, rb - 3, lb + 3), 0, top_k))
         reaches = inner - darkest > 0.5 * (face_level - darkest)
-        d_one = d4[one]
+        d_one = wires.d4[one]
         kb = np.where(
             rising,
-            _zone_argmax(d_one, rb[one] - _GUARD_PX, rb[one] + 1),
-            _zone_argmax(-d_one, lb[one] - 2, lb[one] + _GUARD_PX - 1),
+            _zone_argmax(d_one, rb - _GUARD_PX, rb + 1),
+            _zone_argmax(-d_one, lb - 2, lb + _GUARD_PX - 1),
         )
         boundary_edge = _edge(d_one, np.arange(one.shape[0]), kb, np.where(rising, 1.0, -1.0))
+        face_left, face_right = face_left.copy(), face_right.copy()
         face_right[one] = np.where(rising & reaches, boundary_edge, face_right[one])
         face_left[one] = np.where(~rising & reaches, boundary_edge, face_left[one])
         one_sided[one] = reaches
         took_right[one] = reaches & rising
-    has_face = ((rise_ok & fall_ok) | one_sided) & (face_right > face_left)
-    # a dark silhouette's face edge next to its silhouette: fit the two steps together
-    clear_l, clear_r = face_left - left_s, right_s - face_right
-    fit = dark_s & has_face
+    found = ((rise_ok & fall_ok) | one_sided) & (face_right > face_left)
+    return _Faces(face_left, face_right, found, one_sided, took_right)
+
+
+@dataclass(frozen=True)
+class _Fitted:
+    """The wires' boundaries and faces after step 6 [window px], ``(s,)`` each."""
+
+    left: FloatArray
+    right: FloatArray
+    face_left: FloatArray
+    face_right: FloatArray
+    has_face: NDArray[np.bool_]
+
+
+def _near_silhouette_fit(wires: _Wires, faces: _Faces) -> _Fitted:
+    """Step 6: a dark silhouette's face edge between ``_NEAR_MIN_PX`` and ``_NEAR_PX`` from
+    its silhouette is fitted together with it (:func:`_refine_near`); not on the side where
+    a one-sided face took the boundary's edge."""
+    clear_l = faces.left - wires.left
+    clear_r = wires.right - faces.right
+    fit = wires.dark & faces.found
     near_l = fit & (clear_l > _NEAR_MIN_PX) & (clear_l < _NEAR_PX)
     near_r = fit & (clear_r > _NEAR_MIN_PX) & (clear_r < _NEAR_PX)
-    near_l &= ~(one_sided & ~took_right)
-    near_r &= ~(one_sided & took_right)
-    if np.any(near_l | near_r):
-        fits = _refine_near(
-            xs_s,
-            d4,
-            np.flatnonzero(near_l),
-            np.flatnonzero(near_r),
-            left_s,
-            right_s,
-            face_left,
-            face_right,
-            sky_l[sel],
-            sky_r[sel],
-        )
-        left_s, right_s, face_left, face_right = fits
-        left_w[sel], right_w[sel] = left_s, right_s
-        has_face &= face_right > face_left
-    # a wire whose sides are too dark to be seen (at night) is narrow but has its face
-    keep = wide_enough[sel] | has_face
-    sel = sel[keep]
-    has_face = has_face[keep]
-    offset = first_px[sel].astype(np.float64)
-    nan = np.float64(np.nan)
-    return _Found(
-        row=row[sel],
-        start=start[sel],
-        left=left_w[sel] + offset,
-        right=right_w[sel] + offset,
-        face_left=np.where(has_face, face_left[keep] + offset, nan),
-        face_right=np.where(has_face, face_right[keep] + offset, nan),
-        peak_dev=peak_dev[sel] / 4.0,
-        polarity=np.where(mixed[sel], 0, polarity[sel]).astype(np.int8),
+    near_l &= ~(faces.one_sided & ~faces.took_right)
+    near_r &= ~(faces.one_sided & faces.took_right)
+    if not np.any(near_l | near_r):
+        return _Fitted(wires.left, wires.right, faces.left, faces.right, faces.found)
+    left, right, face_left, face_right = _refine_near(
+        wires.xs,
+        wires.d4,
+        np.flatnonzero(near_l),
+        np.flatnonzero(near_r),
+        wires.left,
+        wires.right,
+        faces.left,
+        faces.right,
+        wires.sky_l,
+        wires.sky_r,
     )
+    return _Fitted(left, right, face_left, face_right, faces.found & (face_right > face_left))
 
 
 def _refine_near(
@@ -1115,7 +1316,8 @@ def _zone_argmax(values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> IntArray
     hi = np.clip(hi, 0, last)
     cols = np.arange(values.shape[1])[None, :]
     inside = (cols >= lo[:, None]) & (cols <= hi[:, None])
-    return np.argmax(np.where(inside, values, -np.inf), axis=1)
+    best: IntArray = np.argmax(np.where(inside, values, -np.inf), axis=1)
+    return best
 
 
 def _extract_group(data: np.ndarray, bit_depth: int, cfg: FeatureConfig) -> LineFeatures:

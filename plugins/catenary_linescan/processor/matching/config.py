@@ -1,0 +1,64 @@
+"""Settings of the matching."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class MatchConfig:
+    """Settings of the matching (lengths in mm, image coordinates in px).
+
+    Attributes
+    ----------
+    max_candidates : int
+        Most candidates kept per scan and camera (the strongest by contrast): ``K``'s cap.
+        The field's systems follow 10-12 wires; with messengers and fittings 24 leaves room.
+    feature_sigma_px : float
+        Standard deviation of a candidate's centre from the features [px].
+    confirm_sigmas : float
+        Confirmation window in standard deviations of the predicted residual (``k``).
+    floor_px : float
+        Narrowest confirmation window [px]: a floor under ``k · σ`` for what the noise model
+        does not hold (blur, a wire's outline seen from different sides).
+    min_cameras : int or None
+        Cameras a point needs; None: 3 with three cameras or more, else 2.
+    x_range_mm, z_range_mm : tuple of float
+        Roof-frame volume in which points are plausible (messengers included).
+    match_polarity : bool
+        Candidates of opposite (non-zero) polarity never match.
+    contact_from_faces : bool
+        Triangulate the contact point from the face's midpoints where two cameras at least
+        saw the face (else the wire's axis from the middles of its silhouettes).
+    support_merged : bool
+        Let merged silhouettes support points (step 4 of the module docstring).
+    covering_pairs : bool
+        Enumerate only the camera pairs that meet every set of ``min_cameras`` cameras
+        (:func:`covering_pairs`), else every pair.
+    two_view : bool
+        Also return the points of two cameras made of detections left unused (unverified,
+        ``Matches.verified`` false) where both saw a worn face, for tracking to take where
+        they continue a wire.
+    min_separation_mm : float
+        Two points of one scan closer than this are one wire seen twice; the weaker goes
+        (:func:`.pipeline._separate`). Wires are 11-15 mm thick: two closer than this touch.
+    """
+
+    max_candidates: int = 24
+    feature_sigma_px: float = 0.15
+    confirm_sigmas: float = 4.0
+    floor_px: float = 0.6
+    min_cameras: int | None = None
+    x_range_mm: tuple[float, float] = (-3000.0, 3000.0)
+    z_range_mm: tuple[float, float] = (300.0, 6000.0)
+    match_polarity: bool = True
+    contact_from_faces: bool = True
+    support_merged: bool = True
+    covering_pairs: bool = True
+    two_view: bool = True
+    min_separation_mm: float = 30.0
+
+    def cameras_needed(self, cameras: int) -> int:
+        if self.min_cameras is not None:
+            return max(2, min(self.min_cameras, cameras))
+        return 3 if cameras >= 3 else 2

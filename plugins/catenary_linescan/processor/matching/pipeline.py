@@ -1,0 +1,177 @@
+"""The matching's steps in order (:func:`match`), with the two-view points (step 6) and the
+separation of points one wire seen twice (step 7)."""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Sequence
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from catenary_linescan.camera import LineScanCamera
+
+from .candidates import Candidates, FloatArray, IntArray
+from .config import MatchConfig
+from .geometry import _Geometry, _undistort
+from .hypotheses import _covering_pairs, _enumerate, _Hypotheses
+from .resolve import _resolve
+from .triangulate import Matches, _triangulate_matches
+
+
+def match(
+    cameras: Sequence[LineScanCamera],
+    candidates: Candidates,
+    sigma_px: FloatArray,
+    config: MatchConfig | None = None,
+) -> Matches:
+    """Match candidates across cameras and triangulate the confirmed points.
+
+    Parameters
+    ----------
+    cameras : sequence of LineScanCamera, length C
+        The rig's cameras, in the order of the candidates' camera axis.
+    candidates : Candidates
+        Padded candidates, ``(n, C, K)`` (:func:`pad_candidates`).
+    sigma_px : ndarray, shape (C,)
+        Standard deviation of each camera's candidate centres [px] (:func:`camera_sigmas_px`).
+    config : MatchConfig, optional
+        Settings; defaults to ``MatchConfig()``.
+
+    Returns
+    -------
+    Matches
+        Sorted by scan; within a scan in the order the conflicts were resolved (best first).
+    """
+    config = config or MatchConfig()
+    n, n_cameras, k = candidates.shape
+    if len(cameras) != n_cameras:
+        raise ValueError(f"{len(cameras)} cameras for candidates of {n_cameras}")
+    if n_cameras < 2:
+        raise ValueError("matching needs two cameras at least")
+    geometry = [_Geometry.of(camera) for camera in cameras]
+    span = 4.0 * max(camera.pixels for camera in cameras)
+    # ideal centres and silhouette edges, (3, n, C, K): one undistortion per camera
+    observed = np.stack([candidates.centre_px, candidates.left_px, candidates.right_px])
+    ideal = np.empty(observed.shape)
+    for c, camera in enumerate(cameras):
+        ideal[:, :, c, :] = _undistort(camera, observed[:, :, c, :])
+    u, left, right = ideal
+    needed = config.cameras_needed(n_cameras)
+    every_pair = list(itertools.combinations(range(n_cameras), 2))
+    pairs = _covering_pairs(geometry, needed) if config.covering_pairs else every_pair
+    others = [pair for pair in every_pair if pair not in pairs]
+    polarity = candidates.polarity
+    hypotheses = _enumerate(
+        geometry, u, (left, right), polarity, sigma_px, config, span, needed, pairs
+    )
+
+    def more(scans: IntArray, used: NDArray[np.bool_]) -> _Hypotheses:
+        """Hypotheses of the other pairs from the unused detections of some scans."""
+        free_u = np.where(used[scans], np.nan, u[scans])
+        found = _enumerate(
+            geometry,
+            free_u,
+            (left[scans], right[scans]),
+            polarity[scans],
+            sigma_px,
+            config,
+            span,
+            needed,
+            others,
+        )
+        return replace(found, scan=scans[found.scan])
+
+    use_more = more if (config.support_merged and others) else None
+    scan, slot, support = _resolve(hypotheses, n, k, needed, use_more)  # (m,), (m, C), (m,)
+    matches = _triangulate_matches(cameras, candidates, scan, slot, sigma_px, config, needed)
+    matches = replace(matches, cameras=matches.cameras + support)
+    if not (config.two_view and needed > 2):
+        return _separate(matches, config.min_separation_mm)
+    # step 6: two-view points of the detections left unused that saw a face, in scans that
+    # have some in two cameras at least (a wire missed by one camera while another is blind)
+    used = np.zeros(u.shape, dtype=bool)
+    cameras_index = np.broadcast_to(np.arange(n_cameras), slot.shape)
+    used[
+        np.broadcast_to(scan[:, np.newaxis], slot.shape)[slot >= 0],
+        cameras_index[slot >= 0],
+        slot[slot >= 0],
+    ] = True
+    # only detections with a face can make a two-view point (below)
+    with_face = np.isfinite(candidates.face_left_px) & np.isfinite(candidates.face_right_px)
+    free_u = np.where(used | ~with_face, np.nan, u)
+    rows = np.flatnonzero(np.isfinite(free_u).any(axis=2).sum(axis=1) >= 2)
+    if not rows.shape[0]:
+        return _separate(matches, config.min_separation_mm)
+    pairs_of = _enumerate(
+        geometry,
+        free_u[rows],
+        (left[rows], right[rows]),
+        polarity[rows],
+        sigma_px,
+        config,
+        span,
+        2,
+        every_pair,
+    )
+    only_two = pairs_of.count == 2
+    two = _triangulate_matches(
+        cameras,
+        candidates,
+        rows[pairs_of.scan[only_two]],
+        pairs_of.slot[only_two],
+        sigma_px,
+        config,
+        2,
+    )
+    # only from the worn face's edges seen by both: the wire's centre at night is that of
+    # its lit part, which differs between cameras by millimetres (a third camera would
+    # catch it, two cannot)
+    two = two.take(two.from_face)
+    two = replace(two, verified=np.zeros(two.count, dtype=bool))
+    merged = Matches(
+        **{
+            f: np.concatenate([getattr(matches, f), getattr(two, f)])
+            for f in Matches.__dataclass_fields__
+        }
+    )
+    return _separate(merged.take(np.argsort(merged.scan, kind="stable")), config.min_separation_mm)
+
+
+def _separate(matches: Matches, min_separation_mm: float) -> Matches:
+    """Drop the weaker of two points of a scan closer than ``min_separation_mm``.
+
+    Two wires that close touch, and then no camera tells them apart: two points there are
+    one wire seen twice, once through a merged silhouette's centre or face. The stronger
+    is kept: verified first, then more cameras, then the smaller reprojection RMS.
+    ``matches`` is sorted by scan.
+    """
+    m = matches.count
+    if m < 2:
+        return matches
+    # np.lexsort((rms, -cameras, ~verified, scan)) in two stable sorts, the second on one
+    # integer key, which NumPy sorts by radix when it fits 16 bits
+    by_rms = np.argsort(matches.reprojection_rms_px, kind="stable")
+    most = int(matches.cameras.max())
+    rank = (matches.scan * 2 + ~matches.verified) * (most + 1) + (most - matches.cameras)
+    if int(rank.max()) <= np.iinfo(np.uint16).max:
+        rank = rank.astype(np.uint16)
+    order = by_rms[np.argsort(rank[by_rms], kind="stable")]
+    ranked = matches.take(order)  # by scan, strongest first
+    scan = ranked.scan
+    start = np.searchsorted(scan, scan, side="left")
+    slot = np.arange(m) - start
+    width = int(slot.max()) + 1
+    # for each point, the points of its scan ranked before it
+    others = np.arange(width)
+    before = others[np.newaxis, :] < slot[:, np.newaxis]
+    index = np.minimum(start[:, np.newaxis] + others, m - 1)
+    x = np.where(before, ranked.x_mm[index], np.nan)
+    z = np.where(before, ranked.z_mm[index], np.nan)
+    with np.errstate(invalid="ignore"):
+        near = np.hypot(x - ranked.x_mm[:, np.newaxis], z - ranked.z_mm[:, np.newaxis])
+        too_close = np.asarray((near < min_separation_mm).any(axis=1))
+    # a point dropped does not suppress others (one level: pairs, the case that occurs);
+    # ranked by scan first, the points kept are in scan order
+    return ranked.take(~too_close)

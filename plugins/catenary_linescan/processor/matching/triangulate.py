@@ -1,0 +1,173 @@
+"""Step 5 of the package docstring: each accepted point triangulated from all its cameras."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from catenary_linescan.camera import LineScanCamera
+from catenary_linescan.triangulation import triangulate
+
+from .candidates import BoolArray, Candidates, FloatArray, IntArray
+from .config import MatchConfig
+from .geometry import _gather, _pinhole, _undistort
+
+
+@dataclass(frozen=True, eq=False)
+class Matches:
+    """Points confirmed by the matching, ``m`` of them (one per wire and scan).
+
+    Attributes
+    ----------
+    scan : ndarray of int, shape (m,)
+        Scan index within the block.
+    slot : ndarray of int, shape (m, C)
+        The candidate (index along ``K`` of :class:`Candidates`) each camera contributed; -1
+        where the camera did not confirm the point.
+    x_mm, z_mm : ndarray, shape (m,)
+        Roof-frame position [mm] from all confirming cameras: the worn face's centre where two
+        cameras saw the face (``from_face``), else the wire's axis (the middles of its
+        silhouettes: a camera's face centre is never mixed with another's silhouette).
+    from_face : ndarray of bool, shape (m,)
+        Whether the position comes from the face's midpoints.
+    cameras : ndarray of int, shape (m,)
+        Number of cameras that confirmed the point: those in ``slot``, and those whose merged
+        silhouette supports it (``MatchConfig.merged_width_mm``).
+    reprojection_rms_px : ndarray, shape (m,)
+        RMS of the triangulation's residuals [px].
+    sigma_x_mm, sigma_z_mm : ndarray, shape (m,)
+        Standard deviation of the position for the features' noise [mm].
+    verified : ndarray of bool, shape (m,)
+        Confirmed by ``min_cameras``. The others (``MatchConfig.two_view``) are points of two
+        cameras whose detections no verified point uses: unverifiable alone, they can only
+        continue a wire's track where it predicts them (:mod:`..tracking`).
+    """
+
+    scan: IntArray
+    slot: IntArray
+    x_mm: FloatArray
+    z_mm: FloatArray
+    from_face: BoolArray
+    cameras: IntArray
+    reprojection_rms_px: FloatArray
+    sigma_x_mm: FloatArray
+    sigma_z_mm: FloatArray
+    verified: BoolArray
+
+    @property
+    def count(self) -> int:
+        return int(self.scan.shape[0])
+
+    def take(self, rows: NDArray[np.integer] | BoolArray) -> Matches:
+        """The matches at ``rows`` (indices or a mask)."""
+        return Matches(
+            scan=self.scan[rows],
+            slot=self.slot[rows],
+            x_mm=self.x_mm[rows],
+            z_mm=self.z_mm[rows],
+            from_face=self.from_face[rows],
+            cameras=self.cameras[rows],
+            reprojection_rms_px=self.reprojection_rms_px[rows],
+            sigma_x_mm=self.sigma_x_mm[rows],
+            sigma_z_mm=self.sigma_z_mm[rows],
+            verified=self.verified[rows],
+        )
+
+
+def _put(values: FloatArray, rows: NDArray[np.intp], new: FloatArray) -> FloatArray:
+    out = values.copy()
+    out[rows] = new
+    return out
+
+
+def _triangulate_matches(
+    cameras: Sequence[LineScanCamera],
+    candidates: Candidates,
+    scan: IntArray,
+    slot: IntArray,
+    sigma_px: FloatArray,
+    config: MatchConfig,
+    needed: int,
+) -> Matches:
+    """Step 5: each point from all its cameras (face midpoints where two saw the face).
+
+    Where a point has a camera to spare, the camera whose image lies furthest outside its
+    confirmation window from the point the other cameras give (leave-one-out) is dropped
+    and the point triangulated again: an outlier in one of the two cameras a hypothesis was
+    built from moves the hypothesis, and the other cameras can still fall in their windows
+    of it; at the least-squares point the outlier's error is shared among all the cameras.
+    """
+    left, right, face_left, face_right = _gather(
+        scan,
+        slot,
+        candidates.left_px,
+        candidates.right_px,
+        candidates.face_left_px,
+        candidates.face_right_px,
+    )
+    face_mid = 0.5 * (face_left + face_right)
+    face_views = np.isfinite(face_mid).sum(axis=1)
+    from_face = (face_views >= 2) & config.contact_from_faces
+    # the contact point from the faces, else the axis from every camera's silhouette (a
+    # camera's face centre lies a radius below the axis: the two are never mixed)
+    u = np.where(from_face[:, np.newaxis], face_mid, 0.5 * (left + right))
+    sigma = float(np.sqrt(np.mean(sigma_px**2))) if sigma_px.size else 0.1
+    # on ideal coordinates, with the distortion-free twins of the cameras: the same least
+    # squares (the radial term changes the pixel scale by a part in a thousand at most)
+    ideal = np.stack([_undistort(camera, u[:, c]) for c, camera in enumerate(cameras)], 1)
+    pinholes = [_pinhole(camera) for camera in cameras]
+    result = triangulate(pinholes, ideal, sigma_px=sigma)
+    window = np.maximum(config.confirm_sigmas * sigma_px, config.floor_px)[np.newaxis, :]
+    # leave-one-out, linearised: camera i's residual at the point the others give is
+    # r_i / (1 - h_i), h_i = j_iᵀ (JᵀJ)⁻¹ j_i its leverage (j_i its row of the Jacobian)
+    seen = np.isfinite(ideal)
+    # the pinholes' projection and its gradient (LineScanCamera.project_jacobian), (m, C)
+    m00, m01, m02, m10, m11, m12 = np.array(
+        [camera.matrix.ravel() for camera in pinholes], dtype=np.float64
+    ).T[:, np.newaxis, :]
+    x, z = result.x_mm[:, np.newaxis], result.z_mm[:, np.newaxis]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        den = m10 * x + m11 * z + m12
+        u_c = (m00 * x + m01 * z + m02) / den
+        residual = np.where(seen, u_c - ideal, 0.0)
+        jx = np.where(seen, (m00 - u_c * m10) / den, 0.0)
+        jz = np.where(seen, (m01 - u_c * m11) / den, 0.0)
+    n11 = (jx * jx).sum(axis=1)[:, np.newaxis]
+    n12 = (jx * jz).sum(axis=1)[:, np.newaxis]
+    n22 = (jz * jz).sum(axis=1)[:, np.newaxis]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        leverage = (jx * jx * n22 - 2.0 * jx * jz * n12 + jz * jz * n11) / (n11 * n22 - n12**2)
+        excess = np.abs(residual) / np.maximum(1.0 - leverage, 1e-3) / window
+    excess = np.where(seen & np.isfinite(excess), excess, 0.0)
+    spare = seen.sum(axis=1) > needed
+    worst = np.argmax(excess, axis=1)
+    drop = spare & (excess[np.arange(scan.shape[0]), worst] > 1.0)
+    rows, worst = np.flatnonzero(drop), worst[drop]
+    if rows.shape[0]:
+        slot = slot.copy()
+        slot[rows, worst] = -1
+        ideal[rows, worst] = np.nan
+        again = triangulate(pinholes, ideal[rows], sigma_px=sigma)
+        result = replace(
+            result,
+            x_mm=_put(result.x_mm, rows, again.x_mm),
+            z_mm=_put(result.z_mm, rows, again.z_mm),
+            rms_reprojection_px=_put(result.rms_reprojection_px, rows, again.rms_reprojection_px),
+            sigma_x_mm=_put(result.sigma_x_mm, rows, again.sigma_x_mm),
+            sigma_z_mm=_put(result.sigma_z_mm, rows, again.sigma_z_mm),
+        )
+    return Matches(
+        scan=scan,
+        slot=slot,
+        x_mm=result.x_mm,
+        z_mm=result.z_mm,
+        from_face=from_face,
+        cameras=(slot >= 0).sum(axis=1).astype(np.int64),
+        reprojection_rms_px=result.rms_reprojection_px,
+        sigma_x_mm=result.sigma_x_mm,
+        sigma_z_mm=result.sigma_z_mm,
+        verified=np.ones(scan.shape[0], dtype=bool),
+    )
