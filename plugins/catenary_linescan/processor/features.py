@@ -83,10 +83,10 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 from numpy.typing import NDArray
 
+from catenary.arrays import FloatArray, IndexArray
+
 __all__ = ["FeatureConfig", "LineFeatures", "extract_features"]
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.intp]
 
 _GROUP_BYTES = 1 << 22
 """Bytes of line data processed at once: the more lines, the less per-call overhead; the
@@ -534,7 +534,7 @@ def _detect(
     return detected
 
 
-def _runs(mask: NDArray[np.bool_]) -> tuple[IntArray, IntArray, IntArray]:
+def _runs(mask: NDArray[np.bool_]) -> tuple[IndexArray, IndexArray, IndexArray]:
     """Runs of True along axis 1: ``(row, start, stop)`` in raster order."""
     r, c = mask.shape
     padded = np.empty((r, c + 1), dtype=np.int8)
@@ -573,7 +573,7 @@ def _rows(a: np.ndarray, first: np.ndarray, count: int) -> np.ndarray:
     return rows
 
 
-def _windows(data: np.ndarray, row: IntArray, first: IntArray, count: int) -> np.ndarray:
+def _windows(data: np.ndarray, row: IndexArray, first: IndexArray, count: int) -> np.ndarray:
     """Pixels ``first .. first + count - 1`` of lines ``row`` ``(m, count)``; pixels past a
     line's ends repeat its end pixel."""
     width = data.shape[1]
@@ -668,7 +668,7 @@ def _candidates(
     sums: NDArray[np.float32],
     sigma: NDArray[np.float32],
     cfg: FeatureConfig,
-) -> tuple[IntArray, IntArray, IntArray, IntArray, IntArray]:
+) -> tuple[IndexArray, IndexArray, IndexArray, IndexArray, IndexArray]:
     """Candidate runs of bins ``(row, start, stop)`` and the limits of the sky beside them
     ``(gap_l, gap_r)`` [px]: a bin clear of the neighbouring runs (if any)."""
     b = cfg.bin_px
@@ -706,9 +706,9 @@ def _dark_joins(
     sums: NDArray[np.float32],
     sigma: NDArray[np.float32],
     cfg: FeatureConfig,
-    row: IntArray,
-    start: IntArray,
-    stop: IntArray,
+    row: IndexArray,
+    start: IndexArray,
+    stop: IndexArray,
     end_sign: np.ndarray,
     start_sign: np.ndarray,
 ) -> NDArray[np.bool_] | None:
@@ -780,8 +780,8 @@ def _dark_joins(
 class _Found:
     """Per-candidate results of the fine pass (window-independent, line coordinates)."""
 
-    row: IntArray
-    start: IntArray
+    row: IndexArray
+    start: IndexArray
     left: FloatArray
     right: FloatArray
     face_left: FloatArray
@@ -798,7 +798,7 @@ class _Found:
 
 def _fine(
     data: np.ndarray,
-    cand: tuple[IntArray, ...],
+    cand: tuple[IndexArray, ...],
     sigma: NDArray[np.float32],
     cfg: FeatureConfig,
     full: float,
@@ -847,10 +847,10 @@ class _Windows:
     xs4: NDArray[np.float32]  # (m * stride,)
     stride: int
     margin: int
-    base: IntArray  # (m,) each window's first index in xs4: i * stride
-    run_px: IntArray  # (m,) the run's length [px]
-    own: IntArray  # (m,) the window's own length [px]
-    first_px: IntArray  # (m,)
+    base: IndexArray  # (m,) each window's first index in xs4: i * stride
+    run_px: IndexArray  # (m,) the run's length [px]
+    own: IndexArray  # (m,) the window's own length [px]
+    first_px: IndexArray  # (m,)
     sigma: NDArray[np.float32]  # (m,) the line's pixel noise [DN]
     s4: NDArray[np.float32]  # (m,) the noise of xs4
     saturated: NDArray[np.bool_]  # (m,) a pixel of the window at full scale
@@ -858,9 +858,9 @@ class _Windows:
 
 def _pixel_windows(
     data: np.ndarray,
-    row: IntArray,
-    start: IntArray,
-    stop: IntArray,
+    row: IndexArray,
+    start: IndexArray,
+    stop: IndexArray,
     sigma: NDArray[np.float32],
     cfg: FeatureConfig,
     full: float,
@@ -892,8 +892,8 @@ class _Sky:
     """The sky beside each of ``m`` candidates: ``_SKY_PX`` pixels from window positions
     ``at_l`` and ``at_r`` on, and the ramp between their means (xs4 units)."""
 
-    at_l: IntArray  # (m,)
-    at_r: IntArray  # (m,)
+    at_l: IndexArray  # (m,)
+    at_r: IndexArray  # (m,)
     pixels: NDArray[np.float32]  # (_SKY_PX, 2m): the left sides, then the right sides
     level: NDArray[np.float32]  # (2m,) their means
     slope: NDArray[np.float32]  # (m,) the ramp's slope per window pixel
@@ -908,7 +908,7 @@ class _Sky:
         return self.level[self.slope.shape[0] :]
 
 
-def _sky(windows: _Windows, gap_l: IntArray, gap_r: IntArray) -> _Sky:
+def _sky(windows: _Windows, gap_l: IndexArray, gap_r: IndexArray) -> _Sky:
     """Step 3's sky on either side: at the window's ends, or clear of a nearer neighbour
     (``gap_l``, ``gap_r`` [line px], ``(m,)``)."""
     w = windows
@@ -1026,9 +1026,9 @@ class _Wires:
     d4: NDArray[np.float32]  # (s, stride)
     left: FloatArray  # (s,) boundaries [window px]
     right: FloatArray  # (s,)
-    lb: IntArray  # (s,) the pixels at or outside them
-    rb: IntArray  # (s,)
-    top_k: IntArray  # (s,) the last pixel a face edge may take
+    lb: IndexArray  # (s,) the pixels at or outside them
+    rb: IndexArray  # (s,)
+    top_k: IndexArray  # (s,) the last pixel a face edge may take
     dark: NDArray[np.bool_]  # (s,) a dark silhouette
     t_face: NDArray[np.float32]  # (s,) a face edge's least first difference
     sky_l: NDArray[np.float32]  # (s,) the sky's level beside the wire
@@ -1040,7 +1040,7 @@ def _kept_wires(
     sky: _Sky,
     contrast: _Contrast,
     boundaries: _Boundaries,
-    sel: IntArray,
+    sel: IndexArray,
     cfg: FeatureConfig,
 ) -> _Wires:
     """The candidates ``sel`` (those that passed step 3) for the face search."""
@@ -1070,8 +1070,8 @@ class _FaceEdges:
     """The strongest rising and falling first difference inside each wire, ``(s,)`` each:
     where (``rise_k``, ``fall_k``), whether significant and sharp, and sub-pixel [window px]."""
 
-    rise_k: IntArray
-    fall_k: IntArray
+    rise_k: IndexArray
+    fall_k: IndexArray
     rise_ok: NDArray[np.bool_]
     fall_ok: NDArray[np.bool_]
     left: FloatArray
@@ -1205,8 +1205,8 @@ def _near_silhouette_fit(wires: _Wires, faces: _Faces) -> _Fitted:
 def _refine_near(
     xs: np.ndarray,
     d: np.ndarray,
-    near_l: IntArray,
-    near_r: IntArray,
+    near_l: IndexArray,
+    near_r: IndexArray,
     left: FloatArray,
     right: FloatArray,
     face_left: FloatArray,
@@ -1309,14 +1309,14 @@ def _normal_cdf(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return 0.5 * (1.0 + th), 0.5 * (1.0 - th * th) * (_CDF_A + 3.0 * _CDF_B * z2)
 
 
-def _zone_argmax(values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> IntArray:
+def _zone_argmax(values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> IndexArray:
     """Argmax of each row over columns ``[lo, hi]`` (clipped to the row)."""
     last = values.shape[1] - 1
     lo = np.clip(lo, 0, last)
     hi = np.clip(hi, 0, last)
     cols = np.arange(values.shape[1])[None, :]
     inside = (cols >= lo[:, None]) & (cols <= hi[:, None])
-    best: IntArray = np.argmax(np.where(inside, values, -np.inf), axis=1)
+    best: IndexArray = np.argmax(np.where(inside, values, -np.inf), axis=1)
     return best
 
 

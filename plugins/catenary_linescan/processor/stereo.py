@@ -52,6 +52,7 @@ from typing import Any
 
 import numpy as np
 
+from catenary.arrays import FloatArray
 from catenary.domain import ScanBlock, WireObservations
 from catenary.errors import UserError
 from catenary.measurement.vehicle import roll_rad
@@ -59,7 +60,6 @@ from catenary_linescan.rig import Rig, read_rig
 
 from .features import FeatureConfig, extract_features
 from .matching import (
-    FloatArray,
     MatchConfig,
     Matches,
     camera_sigmas_px,

@@ -45,10 +45,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from catenary.arrays import FloatArray, IntArray
+
 __all__ = ["MIN_TRACK_M", "TrackedPoints", "TrackingConfig", "WireTracker", "link_fragments"]
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 MIN_TRACK_POINTS = 5
 """Fewest points of a track accepted as a wire."""
@@ -442,8 +442,8 @@ class WireTracker:
         members = np.argsort(fragment_of, kind="stable")
         bounds = np.concatenate([[0], np.cumsum(sizes)])
         track_of_fragment = np.full(fragments.shape[0], -1, dtype=np.int64)
-        for track in self._open.values():
-            track.last_fragment = -1
+        for open_track in self._open.values():
+            open_track.last_fragment = -1
         # by first scan, longest first: a wire's fragment claims its track before a clamp's
         for f in np.lexsort((-sizes, scan[fragments])):  # one step per fragment, not per point
             rows = members[bounds[f] : bounds[f + 1]]
@@ -847,7 +847,8 @@ class WireTracker:
                 (store.scan[ahead], store.position_m[ahead], store.x_mm[ahead], store.z_mm[ahead]),
             ]
             if track_id in self._last_verified:
-                parts.insert(0, tuple(np.array([v]) for v in self._last_verified[track_id]))
+                ls, lp, lx, lz = (np.array([v]) for v in self._last_verified[track_id])
+                parts.insert(0, (ls, lp, lx, lz))
             s, p, x, z = (np.concatenate([part[i] for part in parts]) for i in range(4))
             rows = np.flatnonzero(mine & ~released.verified)
             if s.shape[0] == 0:

@@ -55,7 +55,7 @@ order, 6 and 7), :mod:`.face_widths`; :mod:`.config` holds the settings and :mod
 the cameras' models in arrays that the steps share.
 """
 
-from .candidates import Candidates, FeatureTable, FloatArray, camera_sigmas_px, pad_candidates
+from .candidates import Candidates, FeatureTable, camera_sigmas_px, pad_candidates
 from .config import MatchConfig
 from .face_widths import FaceWidths, face_widths_mm, lit_chord_mm
 from .hypotheses import covering_pairs
@@ -66,7 +66,6 @@ __all__ = [
     "Candidates",
     "FaceWidths",
     "FeatureTable",
-    "FloatArray",
     "MatchConfig",
     "Matches",
     "camera_sigmas_px",

@@ -8,10 +8,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from catenary.arrays import FloatArray, IntArray
 from catenary_linescan.calibration import ResolutionTable
 from catenary_linescan.camera import LineScanCamera
 
-from .candidates import Candidates, FloatArray, IntArray
+from .candidates import Candidates
 from .geometry import _gather, _Geometry, _line_coefficients, _undistort
 from .triangulate import Matches
 

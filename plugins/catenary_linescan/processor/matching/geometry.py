@@ -7,9 +7,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from catenary.arrays import FloatArray, IntArray
 from catenary_linescan.camera import LineScanCamera
-
-from .candidates import FloatArray, IntArray
 
 
 @dataclass(frozen=True)

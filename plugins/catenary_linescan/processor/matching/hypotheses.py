@@ -10,7 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .candidates import FloatArray
+from catenary.arrays import FloatArray
+
 from .config import MatchConfig
 from .geometry import _Geometry
 

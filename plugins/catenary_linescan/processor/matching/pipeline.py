@@ -10,9 +10,10 @@ from dataclasses import replace
 import numpy as np
 from numpy.typing import NDArray
 
+from catenary.arrays import FloatArray, IntArray
 from catenary_linescan.camera import LineScanCamera
 
-from .candidates import Candidates, FloatArray, IntArray
+from .candidates import Candidates
 from .config import MatchConfig
 from .geometry import _Geometry, _undistort
 from .hypotheses import _covering_pairs, _enumerate, _Hypotheses

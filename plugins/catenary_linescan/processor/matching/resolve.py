@@ -8,7 +8,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .candidates import FloatArray, IntArray
+from catenary.arrays import FloatArray, IntArray
+
 from .hypotheses import _Hypotheses
 
 _BORROW_MAX_CHI2 = 1.0

@@ -8,10 +8,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from catenary.arrays import BoolArray, FloatArray, IntArray
 from catenary_linescan.camera import LineScanCamera
 from catenary_linescan.triangulation import triangulate
 
-from .candidates import BoolArray, Candidates, FloatArray, IntArray
+from .candidates import Candidates
 from .config import MatchConfig
 from .geometry import _gather, _pinhole, _undistort
 
