@@ -3,9 +3,14 @@
 ``IntArray`` holds int64 values (identifiers, counts, stored columns: 64-bit on every
 platform); ``IndexArray`` holds ``intp`` indices, what ``argsort``, ``nonzero`` and
 ``searchsorted`` return and indexing takes.
+
+``take`` indexes with -1 for "none", which plain indexing (or ``np.where``, which evaluates
+both branches) cannot do on an empty array.
 """
 
 from __future__ import annotations
+
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -18,6 +23,7 @@ __all__ = [
     "IntArray",
     "UInt8Array",
     "UInt16Array",
+    "take",
 ]
 
 FloatArray = NDArray[np.float64]
@@ -27,3 +33,14 @@ IndexArray = NDArray[np.intp]
 BoolArray = NDArray[np.bool_]
 UInt8Array = NDArray[np.uint8]
 UInt16Array = NDArray[np.uint16]
+
+_T = TypeVar("_T", bound=np.generic)
+
+
+def take(values: NDArray[_T], index: NDArray[np.integer[Any]], fill: object) -> NDArray[_T]:
+    """``values[index]`` where ``index >= 0``, ``fill`` where it is -1 (``values`` may be
+    empty); the shape of ``index``."""
+    out = np.full(index.shape, fill, dtype=values.dtype)
+    hit = index >= 0
+    out[hit] = values[index[hit]]
+    return out

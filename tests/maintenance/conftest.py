@@ -97,9 +97,12 @@ class Fleet:
         (else ``default_mm``). ``overlap`` adds a second wire, to the right (looking towards
         increasing chainage), in the spans it names, with that minimum. A run in the decreasing
         direction over an overlap numbers the wires the other way round (as the processor
-        does: in order of appearance)."""
+        does: in order of appearance). On a track without masts the run is cut, as one
+        processed without a register, into 10 spans of 50 m from 1000 m naming no mast."""
         masts = sorted(track.masts, key=lambda m: m.chainage_m)
-        chosen = list(range(len(masts) - 1)) if spans is None else list(spans)
+        at_m = [m.chainage_m for m in masts] or [1000.0 + 50.0 * k for k in range(11)]
+        codes: list[str | None] = [m.code for m in masts] or [None] * len(at_m)
+        chosen = list(range(len(at_m) - 1)) if spans is None else list(spans)
         minimum_mm, overlap, mean_mm = minimum_mm or {}, overlap or {}, mean_mm or {}
         run = Run(
             line=track.line,
@@ -126,14 +129,14 @@ class Fleet:
                 rows.append(
                     SpanMeasurement(
                         span=k,
-                        mast_from=masts[k].code,
-                        mast_to=masts[k + 1].code,
-                        start_chainage_m=masts[k].chainage_m,
-                        end_chainage_m=masts[k + 1].chainage_m,
+                        mast_from=codes[k],
+                        mast_to=codes[k + 1],
+                        start_chainage_m=at_m[k],
+                        end_chainage_m=at_m[k + 1],
                         wire=wire,
                         wire_type=wire_type,
                         min_residual_thickness_mm=value,
-                        min_at_chainage_m=masts[k].chainage_m + 12.5,
+                        min_at_chainage_m=at_m[k] + 12.5,
                         mean_residual_thickness_mm=mean_mm.get(k, value + MEAN_ABOVE_MIN_MM),
                         height_min_mm=5280.0,
                         height_max_mm=5320.0,

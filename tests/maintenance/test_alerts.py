@@ -379,3 +379,30 @@ def test_spans_of_an_unknown_wire_type_are_said_and_left_alone(
         assert result.notes == [
             "span measurements of a wire type no plugin registers are not evaluated"
         ]
+
+
+def test_a_track_without_masts_is_evaluated_by_chainage(
+    engine: Engine, registry: PluginRegistry
+) -> None:
+    with session_scope(engine) as session:
+        fleet = Fleet(session)
+        bare = fleet.track(line="L2", masts=0)
+        run = fleet.run(bare, T0, {3: 8.5})  # spans cut without a register: no mast named
+        result = evaluate(session, registry, runs=[run.id])
+        assert result.spans == 10
+        (alert,) = (session.get(Alert, k) for k in result.new)
+        assert alert is not None and alert.track_id == bare.id and alert.value == 8.5
+
+
+def test_the_fleet_is_evaluated_with_a_track_without_masts_beside_others(
+    engine: Engine, registry: PluginRegistry
+) -> None:
+    with session_scope(engine) as session:
+        fleet = Fleet(session)
+        track, bare = fleet.track(), fleet.track(line="L2", masts=0)
+        fleet.run(track, T0, {7: 8.5})
+        fleet.run(bare, T0, {3: 8.6})
+        result = evaluate(session, registry)  # the whole fleet
+        assert result.spans == 20
+        tracks = {(a.track_id, a.value) for a in alerts_of(session)}
+        assert tracks == {(track.id, 8.5), (bare.id, 8.6)}

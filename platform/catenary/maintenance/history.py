@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from catenary.arrays import FloatArray, IntArray
+from catenary.arrays import FloatArray, IntArray, take
 from catenary.maintenance.actions import touches
 from catenary.maintenance.forecast import WearFit, fit_histories
 
@@ -233,7 +233,7 @@ def section_measurements(
     """
     sections = section_length_m.shape[0]
     known = (rows.mast_from >= 0) & (rows.mast_from < mast_section.shape[0])
-    section = np.where(known, mast_section[np.where(known, rows.mast_from, 0)], -1)
+    section = take(mast_section, np.where(known, rows.mast_from, -1), -1)
     use = np.flatnonzero((section >= 0) & (histories.row_history >= 0))
     position = histories.row_position[use]
     width = int(position.max(initial=0)) + 1

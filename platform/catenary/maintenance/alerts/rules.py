@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from catenary.arrays import BoolArray, FloatArray, IntArray
+from catenary.arrays import BoolArray, FloatArray, IntArray, take
 from catenary.config import Settings
 from catenary.errors import UserError
 from catenary.limits import LimitPolicy, LimitRule, thresholds
@@ -70,8 +70,7 @@ class Rule:
 
     def limit(self, wire_type: IntArray) -> FloatArray:
         """The threshold [mm] for each wire type index (-1 and -2: NaN)."""
-        known = wire_type >= 0
-        return np.where(known, self.thickness_mm[np.where(known, wire_type, 0)], np.nan)
+        return take(self.thickness_mm, np.maximum(wire_type, -1), np.nan)
 
     def met(self, value_mm: FloatArray, limit_mm: FloatArray) -> BoolArray:
         return np.asarray(value_mm <= limit_mm if self.rule.inclusive else value_mm < limit_mm)

@@ -22,7 +22,7 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import Session, aliased
 
-from catenary.arrays import FloatArray, IntArray
+from catenary.arrays import FloatArray, IntArray, take
 from catenary.domain import REPAIR_KINDS
 from catenary.maintenance.alerts.rules import LOCAL, SECTION
 from catenary.maintenance.forecast import (
@@ -41,12 +41,18 @@ from catenary.storage.models import (
 __all__ = ["TrackData", "Units", "history_keys", "match_units", "units_of"]
 
 
-def _lookup(keys: IntArray, values: NDArray[np.generic]) -> IntArray:
+def _lookup(keys: NDArray[np.generic], values: NDArray[np.generic]) -> IntArray:
     """Index of each of ``values`` in the sorted, unique ``keys``; -1 where absent."""
     if keys.shape[0] == 0:
         return np.full(values.shape, -1, dtype=np.int64)
     at = np.minimum(np.searchsorted(keys, values), keys.shape[0] - 1)
     return np.where(keys[at] == values, at, -1).astype(np.int64)
+
+
+def _index_in(known: NDArray[np.generic], values: NDArray[np.generic]) -> IntArray:
+    """Index into the unique ``known`` (in any order) of each of ``values``; -1 where absent."""
+    order = np.argsort(known).astype(np.int64)
+    return take(order, _lookup(known[order], values), -1)
 
 
 class TrackData:
@@ -177,9 +183,7 @@ class TrackData:
 
         def local(key: NDArray[np.generic], known: IntArray) -> IntArray:
             """Index into ``known`` of each kept row's ``key``; -1 for none."""
-            order = np.argsort(known)
-            found = _lookup(known[order], key[keep])
-            return np.where(found >= 0, order[np.maximum(found, 0)], -1).astype(np.int64)
+            return _index_in(known, key[keep])
 
         return SpanRows(
             measurement_id=c["id"][keep].astype(np.int64),
@@ -201,14 +205,9 @@ class TrackData:
 
     def mast_index(self, codes: Sequence[str | None]) -> IntArray:
         """Index into this track's masts of each mast code; -1 for None or an unknown code."""
-        order = np.argsort(np.array(self.mast_code, dtype=object))
-        known = np.array(self.mast_code, dtype=object)[order]
         text = np.array(["" if c is None else c for c in codes], dtype=object)
-        if known.shape[0] == 0:
-            return np.full(text.shape[0], -1, dtype=np.int64)
-        at = np.minimum(np.searchsorted(known, text), known.shape[0] - 1)
-        hit = (known[at] == text) & np.array([c is not None for c in codes], dtype=bool)
-        return np.where(hit, order[at], -1).astype(np.int64)
+        found = _index_in(np.array(self.mast_code, dtype=object), text)
+        return np.where(np.array([c is None for c in codes], dtype=bool), -1, found)
 
     def run_started_at(self, run_id: int) -> datetime:
         return self.run_started[int(_lookup(self.run_id, np.array([run_id]))[0])]
