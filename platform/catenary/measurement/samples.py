@@ -26,6 +26,7 @@ import pyarrow.parquet as pq
 from catenary.config import Settings
 from catenary.errors import FormatError, UserError
 from catenary.measurement.compare import RunProfile
+from catenary.measurement.spreadsheet import neutralise_formulas
 from catenary.storage.models import Run
 
 __all__ = [
@@ -149,7 +150,8 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
     """Write tables to ``output`` as CSV or Parquet (by its suffix); returns the rows written.
 
     Written to a temporary file beside ``output`` and renamed at the end: an interrupted
-    export leaves no partial file.
+    export leaves no partial file. CSV is for people: its text cells that a spreadsheet would
+    evaluate are neutralised (``neutralise_formulas``).
     """
     suffix = output.suffix.lower()
     if suffix not in (".csv", ".parquet"):
@@ -165,7 +167,7 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
         else:
             with pa_csv.CSVWriter(partial, schema) as writer:
                 for table in batches:
-                    writer.write_table(table)
+                    writer.write_table(neutralise_formulas(table))
                     rows += table.num_rows
         partial.replace(output)
     except BaseException:
