@@ -921,3 +921,49 @@ def test_one_flagged_sample_faults_the_scans_that_depend_on_it(
         (t_scan > 0.019 + 1e-12) & (t_scan < 0.022 - 1e-12)
     )
     np.testing.assert_array_equal(fault, expected)
+
+
+# -- declared sizes ------------------------------------------------------------------------
+
+HUGE = 10**12
+"""Scans a forged file declares: streaming them would take days."""
+
+
+def _forge_huge(run_path: Path) -> None:
+    """A small run whose every scan dataset is resized to ``HUGE`` scans, marked complete:
+    only its first chunks are written, the rest would read as fill values."""
+    write_run(run_path, [40])
+    with h5py.File(run_path, "r+") as f:
+        for where in ("scans/position_m", "scans/time_s", "cameras/a/lines", "cameras/b/lines"):
+            f[where].resize(HUGE, axis=0)
+        f.attrs["completed_scans"] = HUGE
+
+
+def test_a_declared_size_the_file_cannot_hold_is_refused(run_path: Path) -> None:
+    _forge_huge(run_path)
+    assert run_path.stat().st_size < 1 << 24  # 16 MiB, declaring 8 TB of positions alone
+    with pytest.raises(FormatError) as info:
+        open_run(run_path)
+    message = str(info.value)
+    assert "\n" not in message
+    for needle in (str(run_path), "/scans/position_m", str(HUGE)):
+        assert needle in message, (needle, message)
+
+
+def test_a_contiguous_dataset_declaring_more_than_its_storage_is_refused(run_path: Path) -> None:
+    write_run(run_path, [40])
+    with h5py.File(run_path, "r+") as f:  # contiguous, allocated late: 0 bytes stored
+        for name in ("time_s", "left_mm", "right_mm", "lateral_mm"):
+            del f[f"vehicle/{name}"]
+            f.create_dataset(f"vehicle/{name}", shape=(HUGE,), dtype=np.float64)
+    with pytest.raises(FormatError, match=rf"/vehicle/time_s declares {HUGE} rows"):
+        open_run(run_path)
+
+
+def test_process_refuses_a_forged_size_in_one_line_at_once(run_path: Path) -> None:
+    _forge_huge(run_path)
+    command = [sys.executable, "-m", "catenary.cli", "process", str(run_path), "--rig", "x.toml"]
+    done = subprocess.run(command, capture_output=True, text=True, timeout=60)
+    lines = done.stderr.strip().splitlines()
+    assert done.returncode == 1 and len(lines) == 1, done.stderr
+    assert str(run_path) in lines[0] and "/scans/position_m" in lines[0]

@@ -806,6 +806,12 @@ class RunFile:
                 stacklevel=2 + self._caller_depth,
             )
 
+        for where, ds in self._series.items():
+            self._check_held(ds, f"/scans/{where}", scans)
+        for where, ds in self._lines.items():
+            self._check_held(ds, f"/cameras/{where}/lines", scans)
+        for where, ds in self._vehicle.items():
+            self._check_held(ds, f"/vehicle/{where}", samples)
         self._check_series(self._series["position_m"], "/scans/position_m", scans)
         self._check_series(self._series["time_s"], "/scans/time_s", scans)
         self.vehicle_interval_s = self._check_series(
@@ -917,6 +923,15 @@ class RunFile:
             lines[name] = self._reopen_with_cache(ds)
             bit_depths[name] = int(bit_depth)
         return lines, bit_depths
+
+    def _check_held(self, ds: Any, where: str, rows: int) -> None:
+        """Refuse to read ``rows`` rows of ``ds`` unless its file stores them (``_rows_held``),
+        before anything streams: a forged shape would read fill values for days."""
+        held = _rows_held(ds)
+        if held < rows:
+            raise self._fail(
+                f"{where} declares {rows} rows but the file stores at most {held} of them"
+            )
 
     def _check_series(
         self, ds: Any, where: str, length: int, *, median_step: bool = False
@@ -1038,6 +1053,18 @@ class RunFile:
 
 RunFileReader = RunFile
 """Alias: the reader class is :class:`RunFile`."""
+
+
+def _rows_held(ds: Any) -> int:
+    """The rows of ``ds`` (``[N, ...]``) its file stores, at most: a contiguous dataset's
+    allocated bytes over a row's bytes; a chunked one's allocated chunks (whatever their
+    compression) times the rows a chunk holds. Rows without storage would read as the fill
+    value, which no recorder writes that way."""
+    row_bytes = int(ds.dtype.itemsize * math.prod(ds.shape[1:]))
+    if ds.chunks is None:
+        return int(ds.id.get_storage_size()) // row_bytes if row_bytes else int(ds.shape[0])
+    across = int(math.prod(-(-n // c) for n, c in zip(ds.shape[1:], ds.chunks[1:], strict=True)))
+    return int(ds.id.get_num_chunks()) // max(across, 1) * int(ds.chunks[0])
 
 
 def _read_rows(ds: Any, first: int, last: int, dtype: Any) -> Any:
