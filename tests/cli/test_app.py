@@ -47,6 +47,21 @@ def test_help_everywhere(path: list[str]) -> None:
     assert "Usage:" in result.output
 
 
+DATABASE_COMMANDS = [
+    "process", "export", "compare", "report", "scheduler",
+    "alerts evaluate", "alerts list", "alerts ack", "alerts resolve", "maintenance record",
+    "db upgrade", "db downgrade", "db current", "db check", "notify deliver", "notify status",
+]  # fmt: skip
+"""The commands that touch the database."""
+
+
+@pytest.mark.parametrize("path", DATABASE_COMMANDS)
+def test_every_command_that_touches_the_database_takes_db(path: str) -> None:
+    result = CliRunner().invoke(cli, [*path.split(), "--help"])
+    assert result.exit_code == 0, result.output
+    assert "--db URL" in result.output
+
+
 def test_plugins_lists_builtins_and_what_they_register() -> None:
     result = CliRunner().invoke(cli, ["plugins", "--strict"])
     assert result.exit_code == 0, result.output

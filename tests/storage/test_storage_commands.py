@@ -44,30 +44,37 @@ def assert_one_line_error(result: Result) -> None:
     assert result.output.startswith("Error: ")
 
 
-def test_upgrade_current_check_downgrade(catenary: Catenary, database_url: str) -> None:
+@pytest.mark.parametrize("place", ["global", "command"])
+def test_upgrade_current_check_downgrade(catenary: Catenary, database_url: str, place: str) -> None:
+    """The database given before ``db`` (the global option) or after its command alike."""
     where = shown(database_url)
 
-    result = catenary("--db", database_url, "db", "current")
+    def run(*args: str) -> Result:
+        if place == "global":
+            return catenary("--db", database_url, *args)
+        return catenary(*args, "--db", database_url)
+
+    result = run("db", "current")
     assert result.exit_code == 0, result.output
     assert result.output == f"database {where} is not migrated: run 'catenary db upgrade'\n"
 
-    result = catenary("--db", database_url, "db", "upgrade")
+    result = run("db", "upgrade")
     assert result.exit_code == 0, result.output
     assert result.output == f"database {where} upgraded to {HEAD} (head)\n"
 
-    result = catenary("--db", database_url, "db", "upgrade")
+    result = run("db", "upgrade")
     assert result.exit_code == 0, result.output
     assert result.output == f"database {where} is already at {HEAD} (head)\n"
 
-    result = catenary("--db", database_url, "db", "current")
+    result = run("db", "current")
     assert result.exit_code == 0, result.output
     assert result.output == f"database {where} is at {HEAD} (head)\n"
 
-    result = catenary("--db", database_url, "db", "check")
+    result = run("db", "check")
     assert result.exit_code == 0, result.output
     assert result.output == f"database {where} matches the models at {HEAD} (head)\n"
 
-    result = catenary("--db", database_url, "db", "downgrade", "base")
+    result = run("db", "downgrade", "base")
     assert result.exit_code == 0, result.output
     assert result.output == f"database {where} downgraded to base (no schema)\n"
 
@@ -139,3 +146,13 @@ def test_database_from_the_environment(
     result = catenary("db", "upgrade")
     assert result.exit_code == 0, result.output
     assert path.is_file()
+
+
+def test_notify_status_takes_the_database_option(
+    catenary: Catenary, database_url: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("CATENARY_DATA_DIR", str(tmp_path / "elsewhere"))  # the default database
+    assert catenary("db", "upgrade", "--db", database_url).exit_code == 0
+    result = catenary("notify", "status", "--db", database_url)
+    assert (result.exit_code, result.output) == (0, "every notification is sent\n")
+    assert_one_line_error(catenary("notify", "status"))  # not migrated

@@ -74,10 +74,17 @@ def _bounded(command: click.Command, name: str) -> click.Command:
 
 
 def database_option(command: F) -> F:
-    """``--db URL`` on a command, as the global option does."""
+    """``--db URL`` on a command: the invocation's database (``app_of(ctx).settings``), exactly
+    as the global option sets it; the command takes no parameter for it."""
+
+    def use(ctx: click.Context, param: click.Parameter, url: str | None) -> None:
+        if url is not None:
+            app_of(ctx).use_database(url)
+
     return click.option(
         "--db",
-        "database_url",
         metavar="URL",
+        expose_value=False,
+        callback=use,
         help="Database URL (default: the global --db, $CATENARY_DATABASE_URL, the config).",
     )(command)

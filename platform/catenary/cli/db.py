@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from catenary.cli.app import app_of
+from catenary.cli.app import app_of, database_option
 
 if TYPE_CHECKING:
     from sqlalchemy import Engine
@@ -59,6 +59,7 @@ def _migrate(ctx: click.Context, move: Callable[[Engine, str], str | None], revi
 
 @db.command("upgrade")
 @click.argument("revision", default="head")
+@database_option
 @click.pass_context
 def upgrade_command(ctx: click.Context, revision: str) -> None:
     """Migrate the database up to REVISION (default: head, what this catenary needs)."""
@@ -69,6 +70,7 @@ def upgrade_command(ctx: click.Context, revision: str) -> None:
 
 @db.command("downgrade")
 @click.argument("revision")
+@database_option
 @click.pass_context
 def downgrade_command(ctx: click.Context, revision: str) -> None:
     """Migrate the database down to REVISION ('base' drops every table and its data)."""
@@ -78,6 +80,7 @@ def downgrade_command(ctx: click.Context, revision: str) -> None:
 
 
 @db.command("current")
+@database_option
 @click.pass_context
 def current_command(ctx: click.Context) -> None:
     """Show the database's revision and whether it is the one this catenary needs."""
@@ -98,6 +101,7 @@ def current_command(ctx: click.Context) -> None:
 
 
 @db.command("check")
+@database_option
 @click.pass_context
 def check_command(ctx: click.Context) -> None:
     """Check that the database's schema is what the models describe (exit 1 if not)."""

@@ -26,11 +26,6 @@ if TYPE_CHECKING:
 __all__ = ["alerts", "maintenance"]
 
 
-def _app(ctx: click.Context, database_url: str | None) -> tuple[CommandContext, str]:
-    app = app_of(ctx)
-    return app, database_url or app.settings.database_url
-
-
 def _policy(app: CommandContext, name: str | None, policy_file: Path | None) -> LimitPolicy:
     """The policy named on the command line (a preset, or one of ``policy_file``), else the
     config's ``[limits]``."""
@@ -74,19 +69,18 @@ def evaluate_command(
     everything: bool,
     policy_name: str | None,
     policy_file: Path | None,
-    database_url: str | None,
 ) -> None:
     """Evaluate the wear limits and forecasts: raise, update and resolve alerts."""
     from catenary.maintenance.alerts import announce_alerts, evaluate_alerts, horizon_days
-    from catenary.storage.database import open_database, session_scope
+    from catenary.storage.database import session_scope
     from catenary.storage.runs import find_run
 
     if (run_reference is None) == (not everything):
         raise click.UsageError("give --run ID or --all")
-    app, url = _app(ctx, database_url)
+    app = app_of(ctx)
     policy = _policy(app, policy_name, policy_file)
     horizon = horizon_days(app.settings)
-    with open_database(url) as engine:
+    with app.database() as engine:
         with session_scope(engine) as session:
             run_ids = None if run_reference is None else [find_run(session, run_reference).id]
             result = evaluate_alerts(
@@ -147,14 +141,12 @@ def list_command(
     status: str,
     line: str | None,
     levels: tuple[str, ...],
-    database_url: str | None,
 ) -> None:
     """List alerts, most severe first, then by line, track and chainage."""
     from catenary.maintenance.alerts import list_alerts
-    from catenary.storage.database import open_database, session_scope
+    from catenary.storage.database import session_scope
 
-    _, url = _app(ctx, database_url)
-    with open_database(url) as engine, session_scope(engine) as session:
+    with app_of(ctx).database() as engine, session_scope(engine) as session:
         found = list_alerts(session, status=status, line=line, levels=levels)
         for alert in found:
             section = (alert.details or {}).get("anchor_section")
@@ -172,13 +164,12 @@ def list_command(
 @click.option("--by", "by", required=True, metavar="NAME", help="Who acknowledges it.")
 @database_option
 @click.pass_context
-def ack_command(ctx: click.Context, alert_id: int, by: str, database_url: str | None) -> None:
+def ack_command(ctx: click.Context, alert_id: int, by: str) -> None:
     """Acknowledge alert ID (open -> acknowledged)."""
     from catenary.maintenance.alerts import acknowledge_alert
-    from catenary.storage.database import open_database, session_scope
+    from catenary.storage.database import session_scope
 
-    _, url = _app(ctx, database_url)
-    with open_database(url) as engine, session_scope(engine) as session:
+    with app_of(ctx).database() as engine, session_scope(engine) as session:
         alert = acknowledge_alert(session, alert_id, by, _now())
     click.echo(f"alert {alert.id} acknowledged by {alert.acknowledged_by}")
 
@@ -189,15 +180,12 @@ def ack_command(ctx: click.Context, alert_id: int, by: str, database_url: str | 
 @click.option("--note", help="Why (kept in the alert's details).")
 @database_option
 @click.pass_context
-def resolve_command(
-    ctx: click.Context, alert_id: int, by: str, note: str | None, database_url: str | None
-) -> None:
+def resolve_command(ctx: click.Context, alert_id: int, by: str, note: str | None) -> None:
     """Resolve alert ID by hand (a later run showing the condition raises a new alert)."""
     from catenary.maintenance.alerts import resolve_alert
-    from catenary.storage.database import open_database, session_scope
+    from catenary.storage.database import session_scope
 
-    _, url = _app(ctx, database_url)
-    with open_database(url) as engine, session_scope(engine) as session:
+    with app_of(ctx).database() as engine, session_scope(engine) as session:
         alert = resolve_alert(session, alert_id, by, _now(), note=note)
     click.echo(f"alert {alert.id} resolved by {by}")
 
@@ -279,11 +267,10 @@ def record_command(
     wire: int | None,
     at: str | None,
     note: str | None,
-    database_url: str | None,
 ) -> None:
     """Record maintenance work on a stretch of wire (masts M1 to M2, or chainages X to Y)."""
     from catenary.maintenance.actions import record_maintenance
-    from catenary.storage.database import open_database, session_scope
+    from catenary.storage.database import session_scope
 
     by_masts = from_mast is not None or to_mast is not None
     by_chainage = from_m is not None or to_m is not None
@@ -294,8 +281,7 @@ def record_command(
     ):
         raise click.UsageError("give --from-mast and --to-mast, or --from-m and --to-m")
     performed = _moment(at)
-    _, url = _app(ctx, database_url)
-    with open_database(url) as engine, session_scope(engine) as session:
+    with app_of(ctx).database() as engine, session_scope(engine) as session:
         found = _track(session, line, track)
         if by_masts:
             assert from_mast is not None and to_mast is not None

@@ -77,7 +77,6 @@ def report(
     pairs: tuple[str, ...],
     output: Path | None,
     list_reporters: bool,
-    database_url: str | None,
 ) -> None:
     """Write report NAME to OUTPUT (RUN: a run id or 'latest'; --list: the reporters).
 
@@ -90,7 +89,7 @@ def report(
     from catenary.maintenance.reports import report_request
 
     app = app_of(ctx)
-    settings = app.settings_for(database_url)
+    settings = app.settings
     registry = app.registry
     if list_reporters:
         _list(registry)

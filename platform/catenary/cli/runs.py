@@ -54,7 +54,6 @@ def process(
     track: str | None,
     processor: str,
     replace: bool,
-    database_url: str | None,
 ) -> None:
     """Process a recorded run into per-span wear in the database."""
     from catenary.maintenance.alerts import evaluate_stored_run, run_alerting, run_alerts_lines
@@ -62,7 +61,7 @@ def process(
     from catenary.storage.database import open_database
 
     app = app_of(ctx)
-    settings = app.settings_for(database_url)
+    settings = app.settings
     request = ProcessRequest(
         run_path=run_path,
         rig_path=rig_path,
@@ -122,15 +121,11 @@ def process(
 )
 @database_option
 @click.pass_context
-def export(
-    ctx: click.Context, run_reference: str, what: str, output: Path, database_url: str | None
-) -> None:
+def export(ctx: click.Context, run_reference: str, what: str, output: Path) -> None:
     """Export a run's samples or spans (RUN: a run id or 'latest') as CSV or Parquet."""
     from catenary.measurement.export import export_run
 
-    written, run_id = export_run(
-        app_of(ctx).settings_for(database_url), run_reference, what, output
-    )
+    written, run_id = export_run(app_of(ctx).settings, run_reference, what, output)
     click.echo(f"{written} {what} of run {run_id} written to {output}")
 
 
@@ -139,7 +134,7 @@ def export(
 @click.argument("run_b", metavar="RUN_B")
 @database_option
 @click.pass_context
-def compare(ctx: click.Context, run_a: str, run_b: str, database_url: str | None) -> None:
+def compare(ctx: click.Context, run_a: str, run_b: str) -> None:
     """Repeatability: the residual thickness of two runs over the same section, point by point."""
     from catenary.errors import UserError
     from catenary.measurement.compare import compare_profiles
@@ -147,7 +142,7 @@ def compare(ctx: click.Context, run_a: str, run_b: str, database_url: str | None
     from catenary.storage.database import open_database, session_scope
     from catenary.storage.runs import find_run
 
-    settings = app_of(ctx).settings_for(database_url)
+    settings = app_of(ctx).settings
     with open_database(settings.database_url) as engine, session_scope(engine) as session:
         a, b = find_run(session, run_a), find_run(session, run_b)
         if a.track_id != b.track_id:

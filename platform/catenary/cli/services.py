@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 
 import click
 
-from catenary.cli.app import app_of
+from catenary.cli.app import app_of, database_option
 
 if TYPE_CHECKING:
     from catenary.maintenance.notifications import (
@@ -41,6 +41,7 @@ def _describe(attempt: Attempt) -> str:
 
 
 @notify.command("deliver")
+@database_option
 @click.pass_context
 def deliver_command(ctx: click.Context) -> None:
     """One delivery pass: queue what is missing, send what is due, retry failures later."""
@@ -83,6 +84,7 @@ def _status_line(row: AlertNotification, configured: set[str]) -> str:
 
 
 @notify.command("status")
+@database_option
 @click.pass_context
 def status_command(ctx: click.Context) -> None:
     """List the notifications not sent (pending or failed), with their last error."""
@@ -107,6 +109,7 @@ LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 
 
 @click.command("scheduler")
+@database_option
 @click.pass_context
 def scheduler(ctx: click.Context) -> None:
     """Run the scheduled jobs of [scheduler] as a service, until SIGTERM or Ctrl-C."""

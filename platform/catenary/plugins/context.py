@@ -11,7 +11,6 @@ instead of importing the CLI::
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -55,11 +54,10 @@ class CommandContext:
             self._registry = PluginRegistry(disabled=self.settings.disabled_plugins)
         return self._registry
 
-    def settings_for(self, database_url: str | None) -> Settings:
-        """The settings, with a command's own ``--db URL`` when it was given."""
-        if not database_url:
-            return self.settings
-        return dataclasses.replace(self.settings, database_url=database_url)
+    def use_database(self, database_url: str) -> None:
+        """Use ``database_url`` as the global ``--db`` does (a command's own ``--db URL``)."""
+        self._database_url = database_url
+        self._settings = None
 
     @contextmanager
     def database(self, *, migrated: bool = True) -> Iterator[Engine]:
