@@ -129,6 +129,9 @@ def test_record_maintenance_resolves_what_it_covers(worn: str, engine: Engine) -
         (["--from-m", "1000", "--to-m", "1100", "--at", "2999-01-01"], "in the future"),
         (["--from-m", "1000", "--to-m", "1100", "--wire", "-1"], "wire must be 0 or more"),
         (["--from-m", "1000", "--to-m", "1100", "--track", "9"], "no track '9' on line 'L1'"),
+        (["--from-m", "-inf", "--to-m", "inf"], "--from-m -inf: not a finite chainage"),
+        (["--from-m", "1000", "--to-m", "inf"], "--to-m inf: not a finite chainage"),
+        (["--from-m", "nan", "--to-m", "1100"], "--from-m nan: not a finite chainage"),
     ],
 )
 def test_bad_maintenance_records_are_one_line_and_write_nothing(

@@ -16,6 +16,7 @@ and the wire it names (``wire``: the wire's position in the span, see
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from datetime import datetime
 
@@ -83,12 +84,17 @@ def record_maintenance(
     """Add a maintenance action on ``track`` from ``from_m`` to ``to_m`` [m]; a repair resolves
     the open and acknowledged alerts it covers (``resolved_at = now``).
 
-    Raises ``UserError`` for an unknown kind, a negative wire or an empty name.
+    Raises ``UserError`` for an unknown kind, a chainage that is not finite (an infinite
+    stretch would restart every span's history of the track), a negative wire or an empty
+    name.
     """
     if kind not in MAINTENANCE_KINDS:
         raise UserError(
             f"unknown maintenance kind {kind!r} (known: {', '.join(MAINTENANCE_KINDS)})"
         )
+    for option, chainage_m in (("--from-m", from_m), ("--to-m", to_m)):
+        if not math.isfinite(chainage_m):
+            raise UserError(f"{option} {chainage_m}: not a finite chainage [m]")
     if wire is not None and wire < 0:
         raise UserError(f"wire must be 0 or more, not {wire}")
     if not recorded_by.strip():
