@@ -11,7 +11,7 @@ from typing import Any
 
 import click
 
-from catenary.plugins import CommandContext, pass_command_context
+from catenary.plugins import CommandContext, database_option, pass_command_context
 
 __all__ = ["calibrate", "demo", "simulate"]
 
@@ -129,6 +129,7 @@ def simulate(**options: Any) -> None:
 )
 @click.option("--length-m", type=float, default=300.0, show_default=True, help="Run length.")
 @click.option("--seed", type=int, default=7, show_default=True, help="Scene, motion and noise.")
+@database_option
 @pass_command_context
 def demo(context: CommandContext, /, **options: Any) -> None:
     """Simulate a run on the demo rig, calibrate the rig, process the run, write its reports."""

@@ -48,7 +48,7 @@ def test_help_everywhere(path: list[str]) -> None:
 
 
 DATABASE_COMMANDS = [
-    "process", "export", "compare", "report", "scheduler",
+    "process", "export", "compare", "report", "scheduler", "demo",
     "alerts evaluate", "alerts list", "alerts ack", "alerts resolve", "maintenance record",
     "db upgrade", "db downgrade", "db current", "db check", "notify deliver", "notify status",
 ]  # fmt: skip

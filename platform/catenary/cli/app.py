@@ -11,15 +11,13 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Callable
-from typing import Any, TypeVar
+from typing import Any
 
 import click
 
 from catenary.errors import UserError
 from catenary.plugins.context import CommandContext
 from catenary.wiretype import ProfileRangeError
-
-F = TypeVar("F", bound=Callable[..., Any])
 
 
 def app_of(ctx: click.Context) -> CommandContext:
@@ -71,20 +69,3 @@ def _bounded(command: click.Command, name: str) -> click.Command:
 
     bounded.invoke = invoke  # type: ignore[method-assign]
     return bounded
-
-
-def database_option(command: F) -> F:
-    """``--db URL`` on a command: the invocation's database (``app_of(ctx).settings``), exactly
-    as the global option sets it; the command takes no parameter for it."""
-
-    def use(ctx: click.Context, param: click.Parameter, url: str | None) -> None:
-        if url is not None:
-            app_of(ctx).use_database(url)
-
-    return click.option(
-        "--db",
-        metavar="URL",
-        expose_value=False,
-        callback=use,
-        help="Database URL (default: the global --db, $CATENARY_DATABASE_URL, the config).",
-    )(command)

@@ -8,7 +8,8 @@ from typing import TYPE_CHECKING
 
 import click
 
-from catenary.cli.app import app_of, database_option
+from catenary.cli.app import app_of
+from catenary.plugins import database_option
 
 if TYPE_CHECKING:
     from sqlalchemy import Engine

@@ -12,10 +12,11 @@ from typing import TYPE_CHECKING
 
 import click
 
-from catenary.cli.app import app_of, database_option
+from catenary.cli.app import app_of
 from catenary.domain import ALERT_STATUSES, MAINTENANCE_KINDS, REPAIR_KINDS
 from catenary.errors import UserError
 from catenary.limits import LEVELS, LimitPolicy, choose_policy
+from catenary.plugins import database_option
 from catenary.plugins.context import CommandContext
 
 if TYPE_CHECKING:

@@ -10,9 +10,9 @@ from pathlib import Path
 
 import click
 
-from catenary.cli.app import app_of, database_option
+from catenary.cli.app import app_of
 from catenary.errors import UserError
-from catenary.plugins import PluginRegistry
+from catenary.plugins import PluginRegistry, database_option
 
 __all__ = ["report"]
 

@@ -9,7 +9,8 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from catenary.cli.app import app_of, database_option
+from catenary.cli.app import app_of
+from catenary.plugins import database_option
 
 if TYPE_CHECKING:
     from catenary.domain import RunHeader

@@ -9,14 +9,15 @@
 - the payloads the core hands over: ``ReportRequest`` (reporters), ``AlertRecord``
   (notifiers, ``catenary_alert_raised``), and the domain types of ``catenary.domain``;
 - ``CommandContext`` and ``pass_command_context`` (``context``): what a plugin's command
-  receives (settings, registry, database) instead of importing the CLI;
+  receives (settings, registry, database) instead of importing the CLI, and
+  ``database_option``, the ``--db URL`` of a command that touches the database;
 - ``PluginRegistry`` (``manager``): the core's only caller of the hooks, with its error
   boundary (``PluginRegistry.boundary``, ``PluginFailure``) and the load errors
   (``PluginError``).
 """
 
 from catenary.limits import LimitPolicy
-from catenary.plugins.context import CommandContext, pass_command_context
+from catenary.plugins.context import CommandContext, database_option, pass_command_context
 from catenary.plugins.hookspecs import hookimpl
 from catenary.plugins.manager import PluginError, PluginFailure, PluginRegistry
 from catenary.plugins.types import (
@@ -52,6 +53,7 @@ __all__ = [
     "VehicleSource",
     "VehicleStream",
     "WireType",
+    "database_option",
     "hookimpl",
     "pass_command_context",
 ]

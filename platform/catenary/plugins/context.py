@@ -11,10 +11,10 @@ instead of importing the CLI::
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
@@ -25,7 +25,7 @@ if TYPE_CHECKING:
 
     from catenary.plugins.manager import PluginRegistry
 
-__all__ = ["CommandContext", "pass_command_context"]
+__all__ = ["CommandContext", "database_option", "pass_command_context"]
 
 
 class CommandContext:
@@ -71,3 +71,24 @@ class CommandContext:
 
 pass_command_context = click.make_pass_decorator(CommandContext, ensure=True)
 """Pass the invocation's ``CommandContext`` to a command as its first argument."""
+
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def database_option(command: F) -> F:
+    """``--db URL`` on a command, a plugin's as the core's: the invocation's database
+    (``CommandContext.settings``), exactly as the global ``--db`` sets it; the command takes no
+    parameter for it."""
+
+    def use(ctx: click.Context, param: click.Parameter, url: str | None) -> None:
+        if url is not None:
+            ctx.ensure_object(CommandContext).use_database(url)
+
+    return click.option(
+        "--db",
+        metavar="URL",
+        expose_value=False,
+        callback=use,
+        help="Database URL (default: the global --db, $CATENARY_DATABASE_URL, the config).",
+    )(command)
