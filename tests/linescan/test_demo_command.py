@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 from click.testing import CliRunner
 from sqlalchemy import create_engine, select
 from sqlalchemy.orm import Session
@@ -14,6 +15,7 @@ from catenary.storage.models import RigCalibration, Run
 from catenary_linescan.rig import read_rig
 
 
+@pytest.mark.slow
 def test_demo_simulates_calibrates_processes_and_reports(tmp_path: Path) -> None:
     database = tmp_path / "demo.sqlite"
     out = tmp_path / "demo"

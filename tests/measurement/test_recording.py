@@ -304,7 +304,7 @@ def check_kept(out: Path, scans: int) -> None:
 @pytest.mark.parametrize("how", ["keyboard-interrupt", "sigint"])
 def test_ctrl_c_while_waiting_keeps_the_blocks_before_it(tmp_path: Path, how: str) -> None:
     out = tmp_path / "run.h5"
-    before = signal.getsignal(signal.SIGINT)  # SIG_IGN when the suite runs in the background
+    before = signal.getsignal(signal.SIGINT)  # Python's default, or SIG_IGN under nohup or &
     result = record(
         out, "--source", "fake-scans", "--source-option", "blocks=3",
         "--source-option", f"then={how}", "--block-scans", "10",

@@ -1,7 +1,8 @@
 """A migrated database with alerts, real SMTP and HTTP servers on 127.0.0.1, and settings.
 
-The servers are started by the tests on free ports of the loopback interface and record what
-they receive; nothing leaves the machine.
+The servers are started by the tests on the loopback interface and record what they receive;
+nothing leaves the machine. Each binds port 0 and reads back the port the system gave it: a
+port probed free and bound later could be taken in between by another test (pytest -n).
 """
 
 from __future__ import annotations
@@ -27,12 +28,6 @@ from catenary.storage.database import session_scope
 from catenary.storage.models import Alert, Line, Track
 
 T0 = datetime(2024, 5, 6, 7, 8, 9, tzinfo=UTC)
-
-
-def free_port() -> int:
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        return int(probe.getsockname()[1])
 
 
 class Clock:
@@ -111,29 +106,46 @@ class _Handler:
         return "250 OK"
 
 
+class _PortZeroController(Controller):
+    """aiosmtpd's ``Controller`` given port 0: ``port`` is the one bound, read back before
+    ``start()`` returns (and before the controller connects to its own server)."""
+
+    def _create_server(self) -> Any:
+        created = super()._create_server()
+
+        async def bound() -> Any:
+            server = await created
+            self.port = int(server.sockets[0].getsockname()[1])
+            return server
+
+        return bound()
+
+
 @pytest.fixture
 def start_smtp_server() -> Iterator[Callable[..., SmtpServer]]:
-    """``start_smtp_server(**options)``: an SMTP server on a free port of 127.0.0.1 (options:
-    aiosmtpd's ``Controller``); it accepts the login ``catenary`` / ``s3cret``."""
+    """``start_smtp_server(**options)``: an SMTP server on a port of 127.0.0.1 the system
+    chose (options: aiosmtpd's ``Controller``); it accepts the login ``catenary`` /
+    ``s3cret``."""
     controllers: list[Controller] = []
 
     def start(**options: Any) -> SmtpServer:
-        server = SmtpServer("127.0.0.1", free_port())
+        server = SmtpServer("127.0.0.1", 0)
 
         def authenticate(smtp: Any, session: Any, envelope: Any, mechanism: str, auth: Any) -> Any:
             login = auth.login.decode(), auth.password.decode()
             server.logins.append(login)
             return AuthResult(success=login == ("catenary", "s3cret"), handled=False)
 
-        controller = Controller(
+        controller = _PortZeroController(
             _Handler(server),
             hostname=server.host,
-            port=server.port,
+            port=0,
             authenticator=authenticate,
             **options,
         )
         controller.start()
         controllers.append(controller)
+        server.port = controller.port
         return server
 
     yield start
@@ -148,9 +160,12 @@ def smtp_server(start_smtp_server: Callable[..., SmtpServer]) -> SmtpServer:
 
 
 @pytest.fixture
-def unused_port() -> int:
-    """A port of 127.0.0.1 nothing listens on."""
-    return free_port()
+def unused_port() -> Iterator[int]:
+    """A port of 127.0.0.1 nothing listens on: held by a bound socket that does not listen
+    (a connection is refused) for the whole test, so no other test can start a server on it."""
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        yield int(held.getsockname()[1])
 
 
 # --- an HTTP server ---------------------------------------------------------------------------

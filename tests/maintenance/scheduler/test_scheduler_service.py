@@ -10,7 +10,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -89,6 +89,28 @@ class Service:
         finally:
             self._handle.close()
 
+    def kill(self) -> None:
+        """Kill it if it still runs (a test failed before stopping it)."""
+        if self.process.poll() is None:
+            self.process.kill()
+            self.process.wait(30)
+        self._handle.close()
+
+
+@pytest.fixture
+def start_service() -> Iterator[Callable[[list[str], dict[str, str], Path], Service]]:
+    """``start_service(args, env, log)``: a ``Service``; one a failed test left running is
+    killed at the end, so it holds no connection to the test's database schema."""
+    started: list[Service] = []
+
+    def start(args: list[str], env: dict[str, str], log: Path) -> Service:
+        started.append(Service(args, env, log))
+        return started[-1]
+
+    yield start
+    for service in started:
+        service.kill()
+
 
 def on_grid(moment: datetime, origin: datetime) -> bool:
     steps = (moment - origin) / INTERVAL
@@ -97,7 +119,11 @@ def on_grid(moment: datetime, origin: datetime) -> bool:
 
 @pytest.mark.slow
 def test_restarts_neither_repeat_nor_lose_a_run(
-    tmp_path: Path, database_url: str, engine: Engine, plugin_path: Path
+    tmp_path: Path,
+    database_url: str,
+    engine: Engine,
+    plugin_path: Path,
+    start_service: Callable[[list[str], dict[str, str], Path], Service],
 ) -> None:
     ticks = tmp_path / "ticks.txt"
     config = tmp_path / "catenary.toml"
@@ -112,7 +138,7 @@ def test_restarts_neither_repeat_nor_lose_a_run(
     env = {**os.environ, "PYTHONPATH": str(plugin_path)}
     args = ["--config", str(config), "--db", database_url]
 
-    first = Service(args, env, tmp_path / "first.log")
+    first = start_service(args, env, tmp_path / "first.log")
     first.wait_for(lambda: len(first.fire_times()) >= 2)
     assert first.stop(signal.SIGTERM) == 0, first.text()
     log = first.text()
@@ -123,7 +149,7 @@ def test_restarts_neither_repeat_nor_lose_a_run(
 
     time.sleep(3 * INTERVAL.total_seconds())  # fire times fall due while it is down
     restarted_at = datetime.now(UTC)
-    second = Service(args, env, tmp_path / "second.log")
+    second = start_service(args, env, tmp_path / "second.log")
     second.wait_for(lambda: len(second.fire_times()) >= 2)
     assert second.stop(signal.SIGINT) == 0, second.text()
     log = second.text()
