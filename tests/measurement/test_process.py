@@ -10,6 +10,11 @@ the alignment's tolerance, spans cut at the register's masts.
 from __future__ import annotations
 
 import csv
+import os
+import socket
+import subprocess
+import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -23,6 +28,7 @@ from sqlalchemy import create_engine, func, select
 from sqlalchemy.orm import Session
 
 from catenary.cli import cli
+from catenary.measurement.process import LEGACY_SCRATCH_AGE_S, remove_abandoned_scratch
 from catenary.measurement.samples import EXPORT_COLUMNS
 from catenary.measurement.spans import SPAN_COLUMNS
 from catenary.plugins import PluginRegistry, Processor, hookimpl
@@ -385,3 +391,55 @@ def test_a_failing_third_party_processor_is_named_in_one_line(
     assert stored(database) == (0, 0)
     samples = isolated_environment / "samples"
     assert not samples.exists() or not any(samples.iterdir())
+
+
+def test_scratch_files_of_dead_processes_are_removed_and_live_ones_kept(tmp_path: Path) -> None:
+    host = socket.gethostname()
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)  # fmt: skip
+    dead, live = int(gone.stdout), os.getpid()
+    files = {
+        "dead": tmp_path / f".pass1-{host}-{dead}-0123456789ab.parquet",
+        "dead samples": tmp_path / f".samples-{host}-{dead}-0123456789ab.parquet",
+        "live": tmp_path / f".pass1-{host}-{live}-ba9876543210.parquet",
+        "other host": tmp_path / f".pass1-{host}-elsewhere-{dead}-0123456789ab.parquet",
+        "legacy new": tmp_path / ".samples-0123456789ab.parquet",
+        "legacy old": tmp_path / ".samples-ba9876543210.parquet",
+        "a run's": tmp_path / "run-1-0123456789ab.parquet",
+    }
+    for path in files.values():
+        path.write_bytes(b"")
+    old = time.time() - LEGACY_SCRATCH_AGE_S - 10.0
+    os.utime(files["legacy old"], (old, old))
+    removed = remove_abandoned_scratch(tmp_path)
+    assert sorted(removed) == sorted([files["dead"], files["dead samples"], files["legacy old"]])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+        files[k].name for k in ("live", "other host", "legacy new", "a run's")
+    )
+
+
+@pytest.mark.slow
+def test_a_process_killed_mid_run_leaves_nothing_the_next_one_keeps(
+    simulated: Simulated, database: str, isolated_environment: Path
+) -> None:
+    """``kill -9`` while pass 1 writes: no row, and the next ``process`` removes the hidden
+    files the killed one left and stores the run."""
+    main = "import sys; from catenary.cli import main; main(sys.argv[1:])"
+    command = [sys.executable, "-c", main,
+               "process", str(simulated.run), "--rig", str(simulated.rig),
+               "--masts", str(simulated.masts), "--db", database]  # fmt: skip
+    samples = isolated_environment / "samples"
+    killed = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120.0
+    while not list(samples.glob(".pass1-*")) and time.monotonic() < deadline:
+        assert killed.poll() is None, "the process ended before it wrote its first pass"
+        time.sleep(0.05)
+    time.sleep(0.5)
+    killed.kill()
+    killed.wait()
+    assert list(samples.glob(".pass1-*"))
+    assert stored(database) == (0, 0)
+    result = process(simulated, database)
+    assert result.exit_code == 0, result.output
+    assert stored(database)[0] == 1
+    assert [p.name for p in samples.iterdir() if p.name.startswith(".")] == []

@@ -34,6 +34,9 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
+import socket
+import time
 import uuid
 from collections.abc import Callable, Mapping
 from contextlib import AbstractContextManager
@@ -61,12 +64,20 @@ from catenary.storage.models import SpanMeasurement
 from catenary.storage.runs import find_stored_run, store_run
 from catenary.wiretype import WireType
 
-__all__ = ["DEFAULT_PROCESSOR", "ProcessRequest", "ProcessResult", "process_run"]
+__all__ = [
+    "DEFAULT_PROCESSOR",
+    "ProcessRequest",
+    "ProcessResult",
+    "process_run",
+    "remove_abandoned_scratch",
+]
 
 
 DEFAULT_PROCESSOR = "linescan-stereo"
 BLOCK_SCANS = 1024
 SAMPLES_DIR = "samples"
+LEGACY_SCRATCH_AGE_S = 86400.0
+"""Age [s] past which a hidden file that names no process is taken as abandoned."""
 
 _MEASURED_SCHEMA = pa.schema(
     [
@@ -401,6 +412,44 @@ def _span_rows(
     return rows
 
 
+def _scratch_name(kind: str, token: str) -> str:
+    """A hidden file of this process in the samples folder: ``.{kind}-{host}-{pid}-{token}``,
+    so that another process can tell whether its writer is still alive."""
+    return f".{kind}-{socket.gethostname()}-{os.getpid()}-{token}.parquet"
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def remove_abandoned_scratch(folder: Path, now_s: float | None = None) -> list[Path]:
+    """Remove the hidden files that processes of this host left in the samples folder when
+    they were killed (``kill -9``, a power cut) and return them; a file whose process still
+    runs, or another host's, is left alone. A file named without its process (written before
+    the names carried one) is removed once ``LEGACY_SCRATCH_AGE_S`` old."""
+    host, now_s = socket.gethostname(), time.time() if now_s is None else now_s
+    removed = []
+    for path in [*folder.glob(".pass1-*.parquet"), *folder.glob(".samples-*.parquet")]:
+        parts = path.name[1 : -len(".parquet")].split("-", 1)[1].rsplit("-", 2)
+        if len(parts) == 3 and parts[1].isdigit():
+            abandoned = parts[0] == host and not _alive(int(parts[1]))
+        else:
+            try:
+                abandoned = now_s - path.stat().st_mtime > LEGACY_SCRATCH_AGE_S
+            except FileNotFoundError:
+                continue
+        if abandoned:
+            path.unlink(missing_ok=True)
+            removed.append(path)
+    return removed
+
+
 def _started_at(header: RunHeader) -> datetime:
     moment = datetime.fromisoformat(header.started_at.replace("Z", "+00:00"))
     return moment if moment.tzinfo is not None else moment.replace(tzinfo=UTC)
@@ -436,9 +485,10 @@ def process_run(
             raise UserError(
                 f"{folder}: cannot create the samples folder ({exc.strerror})"
             ) from None
+        remove_abandoned_scratch(folder)
         token = uuid.uuid4().hex[:12]
-        measured = folder / f".pass1-{token}.parquet"
-        partial = folder / f".samples-{token}.parquet"
+        measured = folder / _scratch_name("pass1", token)
+        partial = folder / _scratch_name("samples", token)
         final: Path | None = None
         old_samples: str | None = None
         try:
