@@ -443,3 +443,24 @@ def test_a_process_killed_mid_run_leaves_nothing_the_next_one_keeps(
     assert result.exit_code == 0, result.output
     assert stored(database)[0] == 1
     assert [p.name for p in samples.iterdir() if p.name.startswith(".")] == []
+
+
+def test_ctrl_c_after_the_commit_says_the_run_is_stored_and_what_is_left(
+    simulated: Simulated, database: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def interrupted(*args: Any) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("catenary.maintenance.alerts.evaluate_stored_run", interrupted)
+    result = CliRunner().invoke(
+        cli,
+        ["process", str(simulated.run), "--rig", str(simulated.rig), "--masts",
+         str(simulated.masts), "--db", database],
+    )  # fmt: skip
+    assert result.exit_code == 130, result.output
+    with Session(create_engine(database)) as session:
+        (run_id,) = session.scalars(select(Run.id)).all()
+    assert result.output.strip().splitlines()[-1] == (
+        f"interrupted: stored as run {run_id}, its alerts not evaluated "
+        f"(catenary alerts evaluate --run {run_id})"
+    )

@@ -19,6 +19,10 @@ from catenary.errors import UserError
 from catenary.plugins.context import CommandContext
 from catenary.wiretype import ProfileRangeError
 
+INTERRUPTED_EXIT_CODE = 130
+"""Exit status of a command stopped by Ctrl-C after keeping what it had done (the shell's
+convention)."""
+
 
 def app_of(ctx: click.Context) -> CommandContext:
     """The invocation's ``CommandContext``, kept on the root context."""

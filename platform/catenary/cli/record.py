@@ -13,16 +13,15 @@ from typing import TYPE_CHECKING, Any, Final
 
 import click
 
-from catenary.cli.app import app_of
+from catenary.cli.app import INTERRUPTED_EXIT_CODE, app_of
 from catenary.domain import DEFAULT_BLOCK_SCANS
 from catenary.errors import UserError
 
 if TYPE_CHECKING:
     from catenary.plugins import PluginRegistry, Source, VehicleSource, VehicleStream
 
-__all__ = ["INTERRUPTED_EXIT_CODE", "parse_options", "record"]
+__all__ = ["parse_options", "record"]
 
-INTERRUPTED_EXIT_CODE: Final = 130
 RECORD_KEYS: Final = {
     "source",
     "source_options",

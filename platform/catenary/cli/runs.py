@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from catenary.cli.app import app_of
+from catenary.cli.app import INTERRUPTED_EXIT_CODE, app_of
 from catenary.plugins import database_option
 
 if TYPE_CHECKING:
@@ -98,8 +98,16 @@ def process(
             "nothing done (--replace processes it again)"
         )
         return
-    with open_database(settings.database_url) as engine:
-        alerts = evaluate_stored_run(alerting, engine, settings, app.registry, result.run_id)
+    try:
+        with open_database(settings.database_url) as engine:
+            alerts = evaluate_stored_run(alerting, engine, settings, app.registry, result.run_id)
+    except KeyboardInterrupt:  # the run is committed: say so, and what is left to do
+        click.echo(
+            f"interrupted: stored as run {result.run_id}, its alerts not evaluated "
+            f"(catenary alerts evaluate --run {result.run_id})",
+            err=True,
+        )
+        ctx.exit(INTERRUPTED_EXIT_CODE)
     for text in [*result.summary_lines(), *run_alerts_lines(alerts)]:
         click.echo(text)
     click.echo(f"stored as run {result.run_id}")
