@@ -9,8 +9,10 @@ from concurrent.futures import ThreadPoolExecutor
 
 import pytest
 import sqlalchemy as sa
+from click.testing import CliRunner
 from sqlalchemy import Engine
 
+from catenary.cli import cli
 from catenary.storage import database
 from catenary.storage.database import make_engine, session_scope
 
@@ -98,3 +100,33 @@ def test_sqlite_writers_begin_immediate_and_readers_deferred(tmp_path: object) -
         engine.dispose()
     begins = [s for s in statements if s.startswith("BEGIN")]
     assert begins == ["BEGIN IMMEDIATE", "BEGIN"]
+
+
+@pytest.mark.parametrize("command", [["alerts", "list"], ["notify", "status"]])
+def test_read_only_commands_do_not_wait_for_a_writer(
+    migrated: Engine, database_url: str, monkeypatch: pytest.MonkeyPatch, command: list[str]
+) -> None:
+    # a command that waited for the writer would fail with "database is locked" after 0.5 s
+    monkeypatch.setattr(database, "SQLITE_BUSY_TIMEOUT_MS", 500)
+    holding = threading.Event()
+    release = threading.Event()
+
+    def hold() -> None:
+        engine = make_engine(database_url)
+        try:
+            with session_scope(engine) as session:
+                session.execute(sa.text("DELETE FROM alerts"))
+                holding.set()
+                release.wait(20)
+        finally:
+            engine.dispose()
+
+    with ThreadPoolExecutor(1) as pool:
+        writer = pool.submit(hold)
+        try:
+            assert holding.wait(20)
+            result = CliRunner().invoke(cli, ["--db", database_url, *command])
+            assert result.exit_code == 0, result.output
+        finally:
+            release.set()
+            writer.result(timeout=30)
