@@ -20,7 +20,10 @@
 5. **Store** in one transaction: the line, track and masts, the vehicle and rig calibration
    (versioned), the run and its span measurements. The samples file is named after the run
    and moved into place inside that transaction; a failure anywhere leaves neither a row
-   nor a file behind.
+   nor a file behind. That transaction checks again that the run is not stored: the same run
+   processed twice at once is stored once, and the other process says it is already stored
+   (on SQLite it waits for the first's write lock; on PostgreSQL its insert breaks the unique
+   key, which is turned into "already stored") and removes its samples file.
 
 The alerts a stored run raises are not evaluated here (measurement knows nothing of
 maintenance): the command that processes the run evaluates them once it is committed
