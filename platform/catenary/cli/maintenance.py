@@ -147,7 +147,7 @@ def list_command(
     from catenary.maintenance.alerts import list_alerts
     from catenary.storage.database import session_scope
 
-    with app_of(ctx).database() as engine, session_scope(engine) as session:
+    with app_of(ctx).database() as engine, session_scope(engine, read_only=True) as session:
         found = list_alerts(session, status=status, line=line, levels=levels)
         for alert in found:
             section = (alert.details or {}).get("anchor_section")

@@ -152,7 +152,10 @@ def compare(ctx: click.Context, run_a: str, run_b: str) -> None:
     from catenary.storage.runs import find_run
 
     settings = app_of(ctx).settings
-    with open_database(settings.database_url) as engine, session_scope(engine) as session:
+    with (
+        open_database(settings.database_url) as engine,
+        session_scope(engine, read_only=True) as session,
+    ):
         a, b = find_run(session, run_a), find_run(session, run_b)
         if a.track_id != b.track_id:
             raise UserError(f"runs {a.id} and {b.id} are on different tracks")

@@ -94,7 +94,10 @@ def status_command(ctx: click.Context) -> None:
 
     settings = app_of(ctx).settings
     configured = {channel.name for channel in notification_config(settings).channels}
-    with open_database(settings.database_url) as engine, session_scope(engine) as session:
+    with (
+        open_database(settings.database_url) as engine,
+        session_scope(engine, read_only=True) as session,
+    ):
         rows = undelivered(session)
         lines = [_status_line(row, configured) for row in rows]
     if not lines:

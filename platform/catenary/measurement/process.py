@@ -20,7 +20,10 @@
 5. **Store** in one transaction: the line, track and masts, the vehicle and rig calibration
    (versioned), the run and its span measurements. The samples file is named after the run
    and moved into place inside that transaction; a failure anywhere leaves neither a row
-   nor a file behind.
+   nor a file behind. That transaction checks again that the run is not stored: the same run
+   processed twice at once is stored once, and the other process says it is already stored
+   (on SQLite it waits for the first's write lock; on PostgreSQL its insert breaks the unique
+   key, which is turned into "already stored") and removes its samples file.
 
 The alerts a stored run raises are not evaluated here (measurement knows nothing of
 maintenance): the command that processes the run evaluates them once it is committed
@@ -47,6 +50,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+from sqlalchemy.exc import IntegrityError
 
 from catenary.config import Settings
 from catenary.domain import RunHeader, TrackRegister, VehicleGeometry, WireObservations
@@ -455,6 +459,14 @@ def _started_at(header: RunHeader) -> datetime:
     return moment if moment.tzinfo is not None else moment.replace(tzinfo=UTC)
 
 
+class _StoredMeanwhile(Exception):
+    """Another process stored the same run while this one measured it."""
+
+    def __init__(self, run_id: int) -> None:
+        super().__init__(run_id)
+        self.run_id = run_id
+
+
 def process_run(
     request: ProcessRequest,
     settings: Settings,
@@ -465,14 +477,10 @@ def process_run(
     """Process one run file into the database (module docstring); see ``ProcessResult``."""
     inputs = _check_inputs(request, settings, registry)
     processor, geometry = _processor(request, registry, settings)
+    rig_sha256 = hashlib.sha256(inputs.rig_text.encode("utf-8")).hexdigest()
     with open_database(settings.database_url) as engine:
-        with session_scope(engine) as session:
-            stored = find_stored_run(
-                session,
-                inputs.source_sha256,
-                geometry.name,
-                hashlib.sha256(inputs.rig_text.encode("utf-8")).hexdigest(),
-            )
+        with session_scope(engine, read_only=True) as session:
+            stored = find_stored_run(session, inputs.source_sha256, geometry.name, rig_sha256)
             if stored is not None and not request.replace:
                 return ProcessResult(run_id=stored.id, already_stored=True, header=inputs.header)
             replaced = None if stored is None else stored.id
@@ -510,46 +518,68 @@ def process_run(
             measured.unlink()
             span_rows = _span_rows(spans.results(), layout, request.wire_type)
             header = inputs.header
-            with session_scope(engine) as session:
-                run, old_samples = store_run(
-                    session,
-                    line=inputs.line,
-                    track=inputs.track,
-                    register=inputs.register,
-                    geometry=geometry,
-                    rig_name=request.rig_path.stem,
-                    rig_text=inputs.rig_text,
-                    replacing=replaced,
-                    span_rows=span_rows,
-                    values=dict(
-                        direction=header.direction,
-                        source_file=str(request.run_path.resolve()),
-                        source_sha256=inputs.source_sha256,
-                        wire_type=request.wire_type,
-                        started_at=_started_at(header),
-                        processed_at=datetime.now(UTC),
-                        scans=header.scans,
-                        length_m=float(abs(ends[1] - ends[0])),
-                        status="complete",
-                        error=None,
-                        chainage_aligned=alignment.aligned,
-                        chainage_offset_m=alignment.offset_m,
-                        encoder_scale=alignment.scale,
-                        alignment_matched=alignment.matched,
-                        alignment_rms_m=alignment.residual_rms_m if alignment.aligned else None,
-                    ),
-                )
-                final = folder / f"run-{run.id}-{token}.parquet"
-                partial.replace(final)
-                run.samples_path = str(final.relative_to(settings.data_dir))
-                session.flush()
-                run_id = run.id
+            try:
+                with session_scope(engine) as session:
+                    # the check that counts is in the transaction that stores: on SQLite it
+                    # holds the write lock, so a concurrent process of the same run waits
+                    # for it here and then finds the run stored
+                    if replaced is None:
+                        stored = find_stored_run(
+                            session, inputs.source_sha256, geometry.name, rig_sha256
+                        )
+                        if stored is not None:
+                            raise _StoredMeanwhile(stored.id)
+                    run, old_samples = store_run(
+                        session,
+                        line=inputs.line,
+                        track=inputs.track,
+                        register=inputs.register,
+                        geometry=geometry,
+                        rig_name=request.rig_path.stem,
+                        rig_text=inputs.rig_text,
+                        replacing=replaced,
+                        span_rows=span_rows,
+                        values=dict(
+                            direction=header.direction,
+                            source_file=str(request.run_path.resolve()),
+                            source_sha256=inputs.source_sha256,
+                            wire_type=request.wire_type,
+                            started_at=_started_at(header),
+                            processed_at=datetime.now(UTC),
+                            scans=header.scans,
+                            length_m=float(abs(ends[1] - ends[0])),
+                            status="complete",
+                            error=None,
+                            chainage_aligned=alignment.aligned,
+                            chainage_offset_m=alignment.offset_m,
+                            encoder_scale=alignment.scale,
+                            alignment_matched=alignment.matched,
+                            alignment_rms_m=alignment.residual_rms_m if alignment.aligned else None,
+                        ),
+                    )
+                    final = folder / f"run-{run.id}-{token}.parquet"
+                    partial.replace(final)
+                    run.samples_path = str(final.relative_to(settings.data_dir))
+                    session.flush()
+                    run_id = run.id
+            except IntegrityError:
+                # PostgreSQL: a concurrent process stored the same run first; this insert
+                # waited for its commit and then broke a unique key
+                with session_scope(engine, read_only=True) as session:
+                    stored = find_stored_run(
+                        session, inputs.source_sha256, geometry.name, rig_sha256
+                    )
+                if stored is None or replaced is not None:
+                    raise
+                raise _StoredMeanwhile(stored.id) from None
             if old_samples:
                 (settings.data_dir / old_samples).unlink(missing_ok=True)
-        except BaseException:
+        except BaseException as exc:
             for path in (measured, partial, final):
                 if path is not None:
                     path.unlink(missing_ok=True)
+            if isinstance(exc, _StoredMeanwhile):
+                return ProcessResult(run_id=exc.run_id, already_stored=True, header=inputs.header)
             raise
     registry.run_stored(run_id, settings.database_url)
     minimum = min(span_rows, key=lambda r: r.min_residual_thickness_mm, default=None)

@@ -24,6 +24,10 @@ from catenary.errors import DatabaseNotMigrated, UserError
 #: How long a SQLite connection waits for another process's lock before giving up.
 SQLITE_BUSY_TIMEOUT_MS = 30_000
 
+#: The execution option that marks a connection's transactions as reading only (SQLite then
+#: begins them deferred; see ``_begin_sqlite_transaction``).
+READ_ONLY = "catenary_read_only"
+
 _PASSWORD_IN_URL = re.compile(r"(//[^/?#@:]*:)[^/?#@]*@")
 
 
@@ -62,7 +66,10 @@ def make_engine(url: str) -> Engine:
     SQLite: ``~`` in the path is expanded, the file's directory is created, foreign keys are
     enforced (``PRAGMA foreign_keys=ON``, off by default in SQLite), a connection waits up to
     ``SQLITE_BUSY_TIMEOUT_MS`` for another process's lock, and every transaction, DDL
-    included, is a real SQLite transaction (SQLAlchemy's recipe for pysqlite). Other
+    included, is a real SQLite transaction (SQLAlchemy's recipe for pysqlite): one that may
+    write begins ``IMMEDIATE`` (it takes the write lock at once, waiting for it), one marked
+    read-only (``session_scope(engine, read_only=True)``, ``connected(engine,
+    read_only=True)``) begins deferred. Other
     backends: connections are checked before use (``pool_pre_ping``), so a long-running service
     survives a server restart.
 
@@ -127,14 +134,29 @@ def _configure_sqlite_connection(dbapi_connection: Any, connection_record: Any) 
 
 
 def _begin_sqlite_transaction(connection: Connection) -> None:
-    connection.exec_driver_sql("BEGIN")
+    # A deferred BEGIN that later writes cannot wait for the lock: SQLite returns "database is
+    # locked" at once, whatever busy_timeout says (waiting could deadlock two readers upgrading
+    # together). A transaction that may write therefore takes the write lock when it begins,
+    # waiting up to busy_timeout; a read-only one stays deferred and never blocks a writer.
+    if connection.get_execution_options().get(READ_ONLY):
+        connection.exec_driver_sql("BEGIN")
+    else:
+        connection.exec_driver_sql("BEGIN IMMEDIATE")
+
+
+def reading(engine: Engine) -> Engine:
+    """``engine`` whose transactions only read: deferred on SQLite, unchanged elsewhere."""
+    return engine.execution_options(**{READ_ONLY: True})
 
 
 @contextmanager
-def connected(engine: Engine) -> Iterator[Connection]:
-    """A connection of ``engine``; a failure to connect is a one-line ``UserError``."""
+def connected(engine: Engine, *, read_only: bool = False) -> Iterator[Connection]:
+    """A connection of ``engine``; a failure to connect is a one-line ``UserError``.
+
+    Its transactions may write unless ``read_only`` (see ``make_engine``).
+    """
     try:
-        connection = engine.connect()
+        connection = (reading(engine) if read_only else engine).connect()
     except DBAPIError as exc:
         raise UserError(
             f"cannot connect to database {mask_url(engine.url)}: {one_line(exc)}"
@@ -162,13 +184,15 @@ def open_database(url: str, *, migrated: bool = True) -> Iterator[Engine]:
 
 
 @contextmanager
-def session_scope(engine: Engine) -> Iterator[Session]:
+def session_scope(engine: Engine, *, read_only: bool = False) -> Iterator[Session]:
     """One unit of work: a session committed if the block succeeds, rolled back on any error.
 
     Nothing of a failed block is written. Objects stay readable after the block
-    (``expire_on_commit=False``), detached from the closed session.
+    (``expire_on_commit=False``), detached from the closed session. On SQLite the unit of work
+    takes the write lock when it begins (waiting for another writer to finish), unless
+    ``read_only``: then it begins deferred, never waits for a writer, and must not write.
     """
-    session = Session(engine, expire_on_commit=False)
+    session = Session(reading(engine) if read_only else engine, expire_on_commit=False)
     try:
         yield session
         session.commit()

@@ -171,7 +171,7 @@ def downgrade(engine: Engine, revision: str) -> str | None:
 def current_revision(engine: Engine) -> str | None:
     """The database's revision; None when it has never been migrated."""
     where = mask_url(engine.url)
-    with connected(engine) as connection:
+    with connected(engine, read_only=True) as connection:
         try:
             return MigrationContext.configure(connection).get_current_revision()
         except CommandError as exc:

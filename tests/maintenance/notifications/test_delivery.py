@@ -6,6 +6,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Callable, Mapping
+from concurrent.futures import ThreadPoolExecutor
 from datetime import timedelta
 from typing import Any
 
@@ -21,7 +22,7 @@ from catenary.maintenance.notifications import (
 )
 from catenary.plugins import AlertRecord, PluginRegistry, hookimpl
 from catenary.plugins.types import Notifier
-from catenary.storage.database import session_scope
+from catenary.storage.database import make_engine, session_scope
 from catenary.storage.models import Alert, AlertNotification
 
 
@@ -286,3 +287,35 @@ def test_config_errors_are_one_line(
 
 def test_no_section_means_no_channels(make_settings: Any) -> None:
     assert notification_config(make_settings({})).channels == ()
+
+
+def test_concurrent_passes_send_each_delivery_once(
+    engine: Engine,
+    database_url: str,
+    alerts: Any,
+    make_settings: Any,
+    registry: PluginRegistry,
+    fake: Fake,
+    clock: Any,
+) -> None:
+    """Three passes at once, each on its own connections (as three processes would be): no
+    error, and every delivery sent exactly once."""
+    keys = [alerts(f"a{n}") for n in range(6)]
+    settings = make_settings(config({"notifier": "fake"}))
+    fake.during_send = lambda: time.sleep(0.05)  # widen the window between claim and record
+    start = threading.Barrier(3, timeout=30)
+
+    def one_pass() -> Any:
+        own = make_engine(database_url)
+        try:
+            start.wait()
+            return deliver(own, registry, settings, clock)
+        finally:
+            own.dispose()
+
+    with ThreadPoolExecutor(3) as pool:
+        futures = [pool.submit(one_pass) for _ in range(3)]
+        reports = [future.result(timeout=60) for future in futures]
+    assert sum(len(report.attempts) for report in reports) == len(keys)
+    assert sorted(alert["id"] for alert, _ in fake.sent) == sorted(keys)
+    assert {row.status for row in rows(engine)} == {"sent"}
