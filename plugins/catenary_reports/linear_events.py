@@ -138,7 +138,7 @@ def write(raw: ReportRequest, output: Path) -> Path:
     """Write the linear events of the runs chosen by ``raw`` (module docstring) to ``output``."""
     request = parse_request("linear-events", raw, runs=(0, 1), line=True)
     check_output(output, (".csv", ".parquet"))
-    with open_database(request.settings.database_url) as engine, session_scope(engine) as session:
+    with open_database(request.settings) as engine, session_scope(engine) as session:
         runs = _runs(session, request)
         tables: Iterator[pa.Table] = (_events(session, run) for run in runs)
         export_table(tables, EVENT_SCHEMA, output)

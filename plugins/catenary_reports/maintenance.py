@@ -521,7 +521,7 @@ def write(raw: ReportRequest, output: Path) -> Path:
     """Write the maintenance report of ``raw['line']`` (every line when None) to ``output``."""
     request = parse_request("maintenance", raw, line=True)
     suffix = check_output(output, (".html", ".csv", ".parquet"))
-    with open_database(request.settings.database_url) as engine, session_scope(engine) as session:
+    with open_database(request.settings) as engine, session_scope(engine) as session:
         tracks = _tracks(session, request.line, request.track)
         alerts = session.scalars(
             select(Alert)

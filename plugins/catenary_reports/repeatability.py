@@ -138,7 +138,7 @@ def write(raw: ReportRequest, output: Path) -> Path:
     )
     suffix = check_output(output, (".html", ".csv", ".parquet"))
     settings, options = request.settings, request.options
-    with open_database(settings.database_url) as engine, session_scope(engine) as session:
+    with open_database(settings) as engine, session_scope(engine) as session:
         a, b = (find_run(session, reference) for reference in request.runs)
         if a.track_id != b.track_id:
             raise UserError(f"runs {a.id} and {b.id} are on different tracks")

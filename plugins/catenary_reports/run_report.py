@@ -414,7 +414,7 @@ def write(raw: ReportRequest, output: Path) -> Path:
     request = parse_request("run", raw, runs=(1, 1), options={"segment_m": 1000.0})
     suffix = check_output(output, (".html", ".csv", ".parquet"))
     settings = request.settings
-    with open_database(settings.database_url) as engine, session_scope(engine) as session:
+    with open_database(settings) as engine, session_scope(engine) as session:
         run = find_run(session, request.runs[0])
         spans = list(run.span_measurements)
         limits = _limits(request.registry, request.policy, {s.wire_type for s in spans})

@@ -20,7 +20,7 @@ def _engine(ctx: click.Context) -> Iterator[Engine]:
     """The engine of the invocation's database (``--db``), disposed of on exit."""
     from catenary.storage.database import open_database
 
-    with open_database(app_of(ctx).settings.database_url, migrated=False) as engine:
+    with open_database(app_of(ctx).settings, migrated=False) as engine:
         yield engine
 
 

@@ -98,7 +98,7 @@ def process(
             "nothing done (--replace processes it again)"
         )
         return
-    with open_database(settings.database_url) as engine:
+    with open_database(settings) as engine:
         alerts = evaluate_stored_run(alerting, engine, settings, app.registry, result.run_id)
     for text in [*result.summary_lines(), *run_alerts_lines(alerts)]:
         click.echo(text)
@@ -144,7 +144,7 @@ def compare(ctx: click.Context, run_a: str, run_b: str) -> None:
     from catenary.storage.runs import find_run
 
     settings = app_of(ctx).settings
-    with open_database(settings.database_url) as engine, session_scope(engine) as session:
+    with open_database(settings) as engine, session_scope(engine) as session:
         a, b = find_run(session, run_a), find_run(session, run_b)
         if a.track_id != b.track_id:
             raise UserError(f"runs {a.id} and {b.id} are on different tracks")

@@ -54,7 +54,7 @@ def deliver_command(ctx: click.Context) -> None:
     if not notification_config(settings).channels:
         click.echo("no notification channels configured ([[notifications.channels]])")
         return
-    with open_database(settings.database_url) as engine:
+    with open_database(settings) as engine:
         report = deliver_pending(lambda: session_scope(engine), app.registry, settings)
     for channel, reason in report.unavailable.items():
         click.echo(f"channel {channel}: {reason}; its notifications wait", err=True)
@@ -94,7 +94,7 @@ def status_command(ctx: click.Context) -> None:
 
     settings = app_of(ctx).settings
     configured = {channel.name for channel in notification_config(settings).channels}
-    with open_database(settings.database_url) as engine, session_scope(engine) as session:
+    with open_database(settings) as engine, session_scope(engine) as session:
         rows = undelivered(session)
         lines = [_status_line(row, configured) for row in rows]
     if not lines:

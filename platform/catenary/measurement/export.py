@@ -25,7 +25,7 @@ def export_run(settings: Settings, reference: str, what: str, output: Path) -> t
     or .parquet, chooses the format); returns the rows written and the run's id."""
     if output.suffix.lower() not in (".csv", ".parquet"):
         raise UserError(f"{output}: the output's suffix must be .csv or .parquet")
-    with open_database(settings.database_url) as engine, session_scope(engine) as session:
+    with open_database(settings) as engine, session_scope(engine) as session:
         run = find_run(session, reference)
         if what == "spans":
             rows = session.scalars(

@@ -416,7 +416,7 @@ def process_run(
     """Process one run file into the database (module docstring); see ``ProcessResult``."""
     inputs = _check_inputs(request, settings, registry)
     processor, geometry = _processor(request, registry, settings)
-    with open_database(settings.database_url) as engine:
+    with open_database(settings) as engine:
         with session_scope(engine) as session:
             stored = find_stored_run(
                 session,

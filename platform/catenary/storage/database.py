@@ -8,6 +8,7 @@ masked.
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -19,6 +20,7 @@ from sqlalchemy.engine import URL, Connection, make_url
 from sqlalchemy.exc import ArgumentError, DBAPIError, NoSuchModuleError
 from sqlalchemy.orm import Session
 
+from catenary.config import DEFAULT_CONNECT_TIMEOUT_S, Settings
 from catenary.errors import DatabaseNotMigrated, UserError
 
 #: How long a SQLite connection waits for another process's lock before giving up.
@@ -56,7 +58,7 @@ def _sqlite_file(url: URL) -> Path | None:
     return Path(database)
 
 
-def make_engine(url: str) -> Engine:
+def make_engine(url: str, *, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S) -> Engine:
     """An engine for ``url``.
 
     SQLite: ``~`` in the path is expanded, the file's directory is created, foreign keys are
@@ -64,7 +66,9 @@ def make_engine(url: str) -> Engine:
     ``SQLITE_BUSY_TIMEOUT_MS`` for another process's lock, and every transaction, DDL
     included, is a real SQLite transaction (SQLAlchemy's recipe for pysqlite). Other
     backends: connections are checked before use (``pool_pre_ping``), so a long-running service
-    survives a server restart.
+    survives a server restart; PostgreSQL: connecting gives up after ``connect_timeout_s``
+    (whole seconds, at least 2: libpq's minimum), so a server that accepts and never answers
+    is a one-line error, not a hang.
 
     Raises ``UserError`` for a malformed URL, an unknown or missing driver, or a SQLite directory
     that cannot be created.
@@ -85,6 +89,8 @@ def make_engine(url: str) -> Engine:
             parsed = parsed.set(database=str(sqlite_file))
     else:
         options["pool_pre_ping"] = True
+    if parsed.get_backend_name() == "postgresql":
+        options["connect_args"] = {"connect_timeout": max(2, math.ceil(connect_timeout_s))}
     where = mask_url(parsed)
     try:
         engine = create_engine(parsed, **options)
@@ -144,15 +150,19 @@ def connected(engine: Engine) -> Iterator[Connection]:
 
 
 @contextmanager
-def open_database(url: str, *, migrated: bool = True) -> Iterator[Engine]:
-    """An engine for ``url``, disposed of on exit; checked to be migrated unless told not to.
+def open_database(database: Settings | str, *, migrated: bool = True) -> Iterator[Engine]:
+    """An engine for ``database`` (the settings' database, with their connect timeout, or a
+    URL), disposed of on exit; checked to be migrated unless told not to.
 
     The usual start of a command::
 
-        with open_database(settings.database_url) as engine, session_scope(engine) as session:
+        with open_database(settings) as engine, session_scope(engine) as session:
             ...
     """
-    engine = make_engine(url)
+    if isinstance(database, str):
+        engine = make_engine(database)
+    else:
+        engine = make_engine(database.database_url, connect_timeout_s=database.connect_timeout_s)
     try:
         if migrated:
             require_migrated(engine)
