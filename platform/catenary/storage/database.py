@@ -26,17 +26,24 @@ from catenary.errors import DatabaseNotMigrated, UserError
 #: How long a SQLite connection waits for another process's lock before giving up.
 SQLITE_BUSY_TIMEOUT_MS = 30_000
 
-_PASSWORD_IN_URL = re.compile(r"(//[^/?#@:]*:)[^/?#@]*@")
+# For a URL that does not parse: everything from the user's ":" to the last "@" (greedy, so a
+# password holding "@", "/" or "?" is masked whole).
+_PASSWORD_IN_URL = re.compile(r"^((?:[^/?#@]*//)?[^/?#@:]*:(?!//)).*@")
+# A query parameter holding a secret (libpq's ``password``, ``sslpassword``, ...).
+_SECRET_IN_QUERY = re.compile(r"(?i)([?&][^=&#]*pass[^=&#]*=)[^&#]*")
 
 
 def mask_url(url: str | URL) -> str:
-    """``url`` as text, with any password replaced by ``***`` (for messages and logs)."""
+    """``url`` as text, with any password (in the URL's user part or its query) replaced by
+    ``***``, whether or not it parses (for messages and logs)."""
     if isinstance(url, URL):
-        return url.render_as_string(hide_password=True)
-    try:
-        return make_url(url).render_as_string(hide_password=True)
-    except ArgumentError:
-        return _PASSWORD_IN_URL.sub(r"\1***@", url)
+        text = url.render_as_string(hide_password=True)
+    else:
+        try:
+            text = make_url(url).render_as_string(hide_password=True)
+        except (ArgumentError, ValueError):  # ValueError: a port that is not a number
+            text = _PASSWORD_IN_URL.sub(r"\1***@", url)
+    return _SECRET_IN_QUERY.sub(r"\1***", text)
 
 
 def one_line(exc: BaseException) -> str:
@@ -79,6 +86,10 @@ def make_engine(url: str, *, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_
         raise UserError(
             f"malformed database URL {mask_url(url)!r}: expected e.g. "
             "sqlite:////path/catenary.sqlite or postgresql+psycopg://user@host/database"
+        ) from None
+    except ValueError:
+        raise UserError(
+            f"malformed database URL {mask_url(url)!r}: the port is not a number"
         ) from None
     options: dict[str, Any] = {}
     sqlite_file = None
