@@ -103,6 +103,25 @@ def test_check_reports_differences_and_fails(catenary: Catenary, database_url: s
     assert "add_index Index ix_runs_line_id_track_id_started_at" in result.stderr
 
 
+def test_check_lists_identifiers_with_control_characters(
+    catenary: Catenary, database_url: str
+) -> None:
+    assert catenary("--db", database_url, "db", "upgrade").exit_code == 0
+    engine = sa.create_engine(database_url)
+    with engine.begin() as connection:
+        connection.execute(
+            sa.text("INSERT INTO lines (code) VALUES ('L1'), (:bad)"), {"bad": "L2\x1b]0;x\x07"}
+        )
+    engine.dispose()
+    result = catenary("--db", database_url, "db", "check")
+    assert result.exit_code == 1
+    assert result.stderr.splitlines()[1:] == [
+        "    lines.code = 'L2\\x1b]0;x\\x07' holds a control character "
+        "(identifiers are printable text)"
+    ]
+    assert "\x1b" not in result.stderr
+
+
 def test_upgrade_to_an_unknown_revision(catenary: Catenary, database_url: str) -> None:
     result = catenary("--db", database_url, "db", "upgrade", "nosuchrev")
     assert_one_line_error(result)
