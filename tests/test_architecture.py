@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[1]
 CORE = ROOT / "platform" / "catenary"
 PLUGINS = ROOT / "plugins"
 
-SHARED = ("domain", "wiretype", "limits", "config", "errors", "arrays")
+SHARED = ("domain", "wiretype", "limits", "config", "errors", "arrays", "text")
 """Modules of ``catenary`` that every package shares."""
 
 FORBIDDEN: dict[str, tuple[str, ...]] = {

@@ -67,3 +67,19 @@ def test_bad_config_is_one_line_naming_file_and_key(
 def test_missing_config_file(tmp_path: Path) -> None:
     with pytest.raises(UserError, match="config file not found"):
         load_settings(config_path=tmp_path / "nope.toml")
+
+
+def test_connect_timeout_defaults_to_10_s_and_is_configurable(tmp_path: Path) -> None:
+    config = tmp_path / "c.toml"
+    config.write_text("")
+    assert load_settings(config_path=config).connect_timeout_s == 10
+    config.write_text("[database]\nconnect_timeout_s = 2.5\n")
+    assert load_settings(config_path=config).connect_timeout_s == 2.5
+
+
+@pytest.mark.parametrize("value", ["0", "-1", '"10"', "true", "inf"])
+def test_bad_connect_timeout_is_one_line(tmp_path: Path, value: str) -> None:
+    config = tmp_path / "c.toml"
+    config.write_text(f"[database]\nconnect_timeout_s = {value}\n")
+    with pytest.raises(UserError, match=r"c\.toml: database\.connect_timeout_s must be a positive"):
+        load_settings(config_path=config)

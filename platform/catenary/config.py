@@ -6,6 +6,7 @@ Precedence, highest first: command-line option, environment variable, config fil
   per-user config directory if it exists;
 - database URL: ``--db URL``, ``$CATENARY_DATABASE_URL``, ``[database] url``, else a SQLite
   file ``catenary.sqlite`` in the data directory;
+- database connect timeout (PostgreSQL): ``[database] connect_timeout_s``, else 10 s;
 - data directory (SQLite file, per-run sample files, reports): ``$CATENARY_DATA_DIR``,
   ``[paths] data_dir``, else the per-user data directory.
 
@@ -15,6 +16,7 @@ features; a known section with an unknown key is an error, so a misspelt key is 
 
 from __future__ import annotations
 
+import math
 import os
 import tomllib
 from collections.abc import Mapping
@@ -27,8 +29,10 @@ import platformdirs
 from catenary.errors import UserError
 
 APP_NAME = "catenary"
+#: How long connecting to a database server may take before the command gives up, in seconds.
+DEFAULT_CONNECT_TIMEOUT_S = 10.0
 KNOWN_KEYS: dict[str, set[str]] = {
-    "database": {"url"},
+    "database": {"url", "connect_timeout_s"},
     "paths": {"data_dir"},
     "plugins": {"disabled"},
 }
@@ -41,6 +45,7 @@ class Settings:
     database_url: str
     data_dir: Path
     config_path: Path | None = None
+    connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S
     disabled_plugins: tuple[str, ...] = ()
     sections: Mapping[str, Any] = field(default_factory=dict)
 
@@ -101,6 +106,17 @@ def load_settings(
     if not url:
         url = f"sqlite:///{data_dir / 'catenary.sqlite'}"
 
+    timeout = data.get("database", {}).get("connect_timeout_s", DEFAULT_CONNECT_TIMEOUT_S)
+    if (
+        isinstance(timeout, bool)
+        or not isinstance(timeout, int | float)
+        or not 0 < timeout < math.inf
+    ):
+        raise UserError(
+            f"{config_path}: database.connect_timeout_s must be a positive number of seconds, "
+            f"not {timeout!r}"
+        )
+
     disabled = data.get("plugins", {}).get("disabled", [])
     if not isinstance(disabled, list) or not all(isinstance(x, str) for x in disabled):
         raise UserError(f"{config_path}: plugins.disabled must be a list of plugin names")
@@ -109,6 +125,7 @@ def load_settings(
         database_url=url,
         data_dir=data_dir,
         config_path=config_path,
+        connect_timeout_s=float(timeout),
         disabled_plugins=tuple(disabled),
         sections={k: v for k, v in data.items() if k not in KNOWN_KEYS},
     )

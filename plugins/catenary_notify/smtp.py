@@ -5,6 +5,7 @@ Settings (``[notifications.channels.settings]``)::
     host = "smtp.example.org"
     port = 587                           # default: 587 starttls, 465 ssl, 25 none
     security = "starttls"                # starttls (default) | ssl | none
+    allow_plain_auth = false             # log in over security = "none" (password in clear)
     ca_file = "/etc/ssl/certs/works-ca.pem"   # optional: the CA to trust (default: the system's)
     username = "catenary"                # optional: log in as
     password_env = "CATENARY_SMTP_PASSWORD"   # the environment variable holding the password
@@ -12,7 +13,9 @@ Settings (``[notifications.channels.settings]``)::
     to = ["overhead-line@example.org"]
     timeout = 10                         # seconds, for each network operation
 
-The password is never written in the file (``password`` is refused). A recipient the server
+The password is never written in the file (``password`` is refused), and never sent in clear
+unless the channel says so: a username with ``security = "none"`` is refused without
+``allow_plain_auth = true``. A recipient the server
 refuses while it accepts others is logged, not retried: a retry would repeat the message to
 those who had it.
 """
@@ -45,6 +48,7 @@ KEYS = {
     "host",
     "port",
     "security",
+    "allow_plain_auth",
     "ca_file",
     "username",
     "password_env",
@@ -96,6 +100,16 @@ def send(alert: AlertRecord, settings: Mapping[str, Any]) -> None:
         raise SettingsError(f"{NAME} settings: username must be a string, not {username!r}")
     if username is None and "password_env" in settings:
         raise SettingsError(f"{NAME} settings: password_env is given without a username")
+    allow_plain_auth = settings.get("allow_plain_auth", False)
+    if not isinstance(allow_plain_auth, bool):
+        raise SettingsError(
+            f"{NAME} settings: allow_plain_auth must be true or false, not {allow_plain_auth!r}"
+        )
+    if security == "none" and username is not None and not allow_plain_auth:
+        raise SettingsError(
+            f'{NAME} settings: security = "none" with a username would send the password in '
+            'clear: use "starttls" or "ssl", or set allow_plain_auth = true'
+        )
     password = None
     if username is not None:
         password = from_environment(NAME, "password_env", settings.get("password_env"))

@@ -139,7 +139,7 @@ def write(raw: ReportRequest, output: Path) -> Path:
     request = parse_request("linear-events", raw, runs=(0, 1), line=True)
     check_output(output, (".csv", ".parquet"))
     with (
-        open_database(request.settings.database_url) as engine,
+        open_database(request.settings) as engine,
         session_scope(engine, read_only=True) as session,
     ):
         runs = _runs(session, request)

@@ -522,7 +522,7 @@ def write(raw: ReportRequest, output: Path) -> Path:
     request = parse_request("maintenance", raw, line=True)
     suffix = check_output(output, (".html", ".csv", ".parquet"))
     with (
-        open_database(request.settings.database_url) as engine,
+        open_database(request.settings) as engine,
         session_scope(engine, read_only=True) as session,
     ):
         tracks = _tracks(session, request.line, request.track)

@@ -139,7 +139,7 @@ def write(raw: ReportRequest, output: Path) -> Path:
     suffix = check_output(output, (".html", ".csv", ".parquet"))
     settings, options = request.settings, request.options
     with (
-        open_database(settings.database_url) as engine,
+        open_database(settings) as engine,
         session_scope(engine, read_only=True) as session,
     ):
         a, b = (find_run(session, reference) for reference in request.runs)

@@ -415,7 +415,7 @@ def write(raw: ReportRequest, output: Path) -> Path:
     suffix = check_output(output, (".html", ".csv", ".parquet"))
     settings = request.settings
     with (
-        open_database(settings.database_url) as engine,
+        open_database(settings) as engine,
         session_scope(engine, read_only=True) as session,
     ):
         run = find_run(session, request.runs[0])

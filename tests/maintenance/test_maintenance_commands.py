@@ -10,7 +10,7 @@ from sqlalchemy import Engine, func, select
 
 from catenary.cli import cli
 from catenary.storage.database import session_scope
-from catenary.storage.models import Alert, MaintenanceAction
+from catenary.storage.models import Alert, Line, MaintenanceAction
 
 from .conftest import T0, Fleet
 
@@ -165,3 +165,36 @@ def test_usage_and_configuration_errors(worn: str, tmp_path: Path) -> None:
     assert "unknown key 'horizon'" in one_line_error(
         invoke(worn, "alerts", "evaluate", "--all", "--policy", "db-ril-997", config=bad)
     )
+
+
+RECORD = ["maintenance", "record", "--line", "L1", "--kind", "inspection"]
+
+
+@pytest.mark.parametrize(
+    ("options", "option"),
+    [
+        (["alerts", "list", "--line", "L1\x1b[31m"], "--line"),
+        (["alerts", "ack", "1", "--by", "A. Planner\r\nBcc: x"], "--by"),
+        (["alerts", "resolve", "1", "--by", "A\x9b"], "--by"),
+        ([*RECORD, "--track", "1\x7f", "--by", "A"], "--track"),
+        ([*RECORD, "--track", "1", "--by", "\x1b]0;pwned\x07"], "--by"),
+    ],
+)
+def test_identifier_options_with_control_characters_are_refused(
+    worn: str, engine: Engine, options: list[str], option: str
+) -> None:
+    error = one_line_error(invoke(worn, *options))
+    assert error.startswith(f"Error: {option} = ")
+    assert error.endswith("holds a control character (identifiers are printable text)")
+    with session_scope(engine) as session:
+        assert session.scalar(select(func.count()).select_from(MaintenanceAction)) == 0
+
+
+def test_stored_names_are_escaped_on_the_terminal(worn: str, engine: Engine) -> None:
+    """A name stored before control characters were refused reaches the terminal escaped."""
+    with session_scope(engine) as session:
+        session.scalars(select(Line).where(Line.code == "L1")).one().code = "L1\x1b]0;pwned\x07"
+    invoke(worn, "alerts", "evaluate", "--all", "--policy", "manufacturer-30pct")
+    listed = invoke(worn, "alerts", "list").output
+    assert "\x1b" not in listed and "\x07" not in listed
+    assert "L1\\x1b]0;pwned\\x07/1" in listed

@@ -70,6 +70,27 @@ def test_bad_registers_are_refused_naming_the_file_row_and_field(
     assert str(error.value).startswith(str(path)) and "\n" not in str(error.value)
 
 
+@pytest.mark.parametrize("field", ["line", "track", "mast", "anchor_section"])
+@pytest.mark.parametrize("control", ["\r", "\n", "\x1b[2J", "\x7f", "\x9b"])
+def test_identifiers_with_control_characters_are_refused(tmp_path: Path, field: str, control: str):
+    row = {"line": "L1", "track": "1", "mast": "M1", "anchor_section": "A1"}
+    row[field] = f"X{control}Y"
+    quoted = ",".join(f'"{value}"' for value in row.values())
+    path = write(
+        tmp_path,
+        "line,track,mast,anchor_section,chainage_m,wire_type\n"
+        f"{quoted},10,CTA120\nL1,1,M2,A1,60,CTA120\n",
+    )
+    with pytest.raises(FormatError) as error:
+        read_register(path, WIRES)
+    message = str(error.value)
+    assert message.startswith(f"{path}: row ")  # the CSV line the record ends on
+    assert message.endswith(
+        f": {field} = {row[field]!r} holds a control character (identifiers are printable text)"
+    )
+    assert "\n" not in message and "\r" not in message and "\x1b" not in message
+
+
 def test_a_missing_register(tmp_path: Path):
     with pytest.raises(UserError, match="no such file"):
         read_register(tmp_path / "none.csv")

@@ -581,6 +581,12 @@ MALFORMED: dict[str, tuple[Callable[[h5py.File], None], list[str]]] = {
         ["start_chainage_m", "km 12"],
     ),
     "bad started_at": (_set_attr("started_at", "yesterday"), ["started_at", "yesterday"]),
+    "line with ESC": (
+        _set_attr("line", "L1\x1b[2J"),
+        ["/ attribute line = 'L1\\x1b[2J' holds a control character"],
+    ),
+    "track with CR LF": (_set_attr("track", "1\r\n"), ["/ attribute track = '1\\r\\n'"]),
+    "vehicle with C1": (_set_attr("vehicle", "V\x9b"), ["/ attribute vehicle = 'V\\x9b'"]),
     "no positions": (_delete("scans/position_m"), ["/scans/position_m", "missing"]),
     "no times": (_delete("scans/time_s"), ["/scans/time_s", "missing"]),
     "no scans group": (_delete("scans"), ["/scans/position_m", "missing"]),

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -100,6 +103,25 @@ def test_check_reports_differences_and_fails(catenary: Catenary, database_url: s
     assert "add_index Index ix_runs_line_id_track_id_started_at" in result.stderr
 
 
+def test_check_lists_identifiers_with_control_characters(
+    catenary: Catenary, database_url: str
+) -> None:
+    assert catenary("--db", database_url, "db", "upgrade").exit_code == 0
+    engine = sa.create_engine(database_url)
+    with engine.begin() as connection:
+        connection.execute(
+            sa.text("INSERT INTO lines (code) VALUES ('L1'), (:bad)"), {"bad": "L2\x1b]0;x\x07"}
+        )
+    engine.dispose()
+    result = catenary("--db", database_url, "db", "check")
+    assert result.exit_code == 1
+    assert result.stderr.splitlines()[1:] == [
+        "    lines.code = 'L2\\x1b]0;x\\x07' holds a control character "
+        "(identifiers are printable text)"
+    ]
+    assert "\x1b" not in result.stderr
+
+
 def test_upgrade_to_an_unknown_revision(catenary: Catenary, database_url: str) -> None:
     result = catenary("--db", database_url, "db", "upgrade", "nosuchrev")
     assert_one_line_error(result)
@@ -156,3 +178,45 @@ def test_notify_status_takes_the_database_option(
     result = catenary("notify", "status", "--db", database_url)
     assert (result.exit_code, result.output) == (0, "every notification is sent\n")
     assert_one_line_error(catenary("notify", "status"))  # not migrated
+
+
+@pytest.fixture
+def silent_server() -> Iterator[int]:
+    """The port of a TCP server on 127.0.0.1 that accepts connections and never answers."""
+    listener = socket.create_server(("127.0.0.1", 0))
+    accepted: list[socket.socket] = []
+    stop = threading.Event()
+
+    def accept() -> None:
+        listener.settimeout(0.1)
+        while not stop.is_set():
+            try:
+                accepted.append(listener.accept()[0])
+            except TimeoutError:
+                continue
+
+    thread = threading.Thread(target=accept, daemon=True)
+    thread.start()
+    try:
+        yield listener.getsockname()[1]
+    finally:
+        stop.set()
+        thread.join()
+        for connection in accepted:
+            connection.close()
+        listener.close()
+
+
+def test_a_silent_server_times_out_in_one_line(
+    catenary: Catenary, silent_server: int, tmp_path: Path
+) -> None:
+    url = f"postgresql+psycopg://fleet:s3cret@127.0.0.1:{silent_server}/catenary"
+    config = tmp_path / "silent.toml"
+    config.write_text(f'[database]\nurl = "{url}"\nconnect_timeout_s = 1\n')
+    started = time.monotonic()
+    result = catenary("--config", str(config), "db", "current")
+    assert time.monotonic() - started < 10
+    assert_one_line_error(result)
+    assert f"cannot connect to database {shown(url)}" in result.output
+    assert "timeout" in result.output
+    assert "s3cret" not in result.output

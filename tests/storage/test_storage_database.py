@@ -25,6 +25,16 @@ UNREACHABLE = "postgresql+psycopg://fleet:s3cret@127.0.0.1:1/catenary"
         (UNREACHABLE, "postgresql+psycopg://fleet:***@127.0.0.1:1/catenary"),
         ("sqlite:////data/catenary.sqlite", "sqlite:////data/catenary.sqlite"),
         ("bad//user:s3cret@host", "bad//user:***@host"),
+        ("fleet:s3cret@host/db", "fleet:***@host/db"),
+        ("postgresql+psycopg://u:s3c@ret@h:x/d", "postgresql+psycopg://u:***@h:x/d"),
+        (
+            "postgresql+psycopg://fleet@h/d?sslmode=require&password=s3cret&sslpassword=s3cret",
+            "postgresql+psycopg://fleet@h/d?password=***&sslmode=require&sslpassword=***",
+        ),
+        (
+            "postgresql+psycopg://fleet@h:x/d?PASSWORD=s3cret",
+            "postgresql+psycopg://fleet@h:x/d?PASSWORD=***",
+        ),
     ],
 )
 def test_mask_url(url: str, masked: str) -> None:
@@ -38,6 +48,19 @@ def test_mask_url(url: str, masked: str) -> None:
         ("nonsense://x", "unknown database driver 'nonsense' in nonsense://x"),
         ("postgresql+nodriver://u:s3cret@h/d", "unknown database driver 'postgresql+nodriver'"),
         ("mysql+mysqldb://u:s3cret@h/d", "mysql+mysqldb://u:***@h/d is not installed"),
+        (
+            "postgresql+psycopg://u:s3cret@h:5432x/d",
+            "malformed database URL 'postgresql+psycopg://u:***@h:5432x/d': "
+            "the port is not a number",
+        ),
+        (
+            "postgresql+psycopg://u@h:x/d?password=s3cret",
+            "malformed database URL 'postgresql+psycopg://u@h:x/d?password=***'",
+        ),
+        (
+            "mysql+mysqldb://u@h/d?password=s3cret",
+            "mysql+mysqldb://u@h/d?password=*** is not installed",
+        ),
     ],
 )
 def test_bad_url_is_one_line_with_password_masked(url: str, message: str) -> None:
@@ -48,17 +71,18 @@ def test_bad_url_is_one_line_with_password_masked(url: str, message: str) -> Non
     assert "s3cret" not in str(raised.value)
 
 
-def test_unreachable_server_is_one_line_with_password_masked() -> None:
-    engine = make_engine(UNREACHABLE)
+@pytest.mark.parametrize(
+    "url", [UNREACHABLE, "postgresql+psycopg://fleet@127.0.0.1:1/catenary?password=s3cret"]
+)
+def test_unreachable_server_is_one_line_with_password_masked(url: str) -> None:
+    engine = make_engine(url)
     try:
         with pytest.raises(UserError) as raised:
             require_migrated(engine)
     finally:
         engine.dispose()
     message = str(raised.value)
-    assert message.startswith(
-        "cannot connect to database postgresql+psycopg://fleet:***@127.0.0.1:1/catenary: "
-    )
+    assert message.startswith(f"cannot connect to database {mask_url(url)}: ")
     assert "\n" not in message
     assert "s3cret" not in message
 

@@ -20,7 +20,7 @@ def _engine(ctx: click.Context) -> Iterator[Engine]:
     """The engine of the invocation's database (``--db``), disposed of on exit."""
     from catenary.storage.database import open_database
 
-    with open_database(app_of(ctx).settings.database_url, migrated=False) as engine:
+    with open_database(app_of(ctx).settings, migrated=False) as engine:
         yield engine
 
 
@@ -105,7 +105,8 @@ def current_command(ctx: click.Context) -> None:
 @database_option
 @click.pass_context
 def check_command(ctx: click.Context) -> None:
-    """Check that the database's schema is what the models describe (exit 1 if not)."""
+    """Check that the database's schema is what the models describe and that no stored
+    identifier holds a control character (exit 1 if not)."""
     from catenary.storage import migrate
     from catenary.storage.database import mask_url, require_migrated
 
@@ -113,10 +114,20 @@ def check_command(ctx: click.Context) -> None:
         require_migrated(engine)
         differences = migrate.check_models_match(engine)
         where = mask_url(engine.url)
-    if differences:
-        click.echo(f"database {where} differs from the models:", err=True)
-        for difference in differences:
-            click.echo(f"    {difference}", err=True)
+        if differences:
+            click.echo(f"database {where} differs from the models:", err=True)
+            for difference in differences:
+                click.echo(f"    {difference}", err=True)
+            ctx.exit(1)
+        unprintable = migrate.identifiers_with_control_characters(engine)
+    if unprintable:
+        click.echo(
+            f"database {where} holds identifiers with control characters "
+            "(stored before they were refused; rename them):",
+            err=True,
+        )
+        for problem in unprintable:
+            click.echo(f"    {problem}", err=True)
         ctx.exit(1)
     click.echo(
         f"database {where} matches the models at {_describe_revision(migrate.head_revision())}"

@@ -18,6 +18,7 @@ from catenary.errors import UserError
 from catenary.limits import LEVELS, LimitPolicy, choose_policy
 from catenary.plugins import database_option
 from catenary.plugins.context import CommandContext
+from catenary.text import identifier_option, printable
 
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session
@@ -100,7 +101,7 @@ def evaluate_command(
     )
     click.echo(f"           {result.summary()}")
     for note in result.notes:
-        click.echo(f"note       {note}")
+        click.echo(printable(f"note       {note}"))
 
 
 def _where(alert: Alert) -> str:
@@ -131,7 +132,7 @@ def _what(alert: Alert) -> str:
     show_default=True,
     help="active: open and acknowledged.",
 )
-@click.option("--line", metavar="L", help="Only this line.")
+@click.option("--line", metavar="L", help="Only this line.", callback=identifier_option)
 @click.option(
     "--level", "levels", multiple=True, type=click.Choice(LEVELS), help="Only these levels."
 )
@@ -152,17 +153,26 @@ def list_command(
         for alert in found:
             section = (alert.details or {}).get("anchor_section")
             click.echo(
-                f"{alert.id:>6}  {alert.level:<8} {alert.kind:<9} {alert.status:<12} "
-                f"{alert.track.line.code}/{alert.track.code}  {_where(alert)}"
-                f"{f' (section {section})' if section else ''}, wire {alert.wire}: "
-                f"{_what(alert)}; {(alert.details or {}).get('action', alert.rule)}"
+                printable(
+                    f"{alert.id:>6}  {alert.level:<8} {alert.kind:<9} {alert.status:<12} "
+                    f"{alert.track.line.code}/{alert.track.code}  {_where(alert)}"
+                    f"{f' (section {section})' if section else ''}, wire {alert.wire}: "
+                    f"{_what(alert)}; {(alert.details or {}).get('action', alert.rule)}"
+                )
             )
     click.echo(f"{len(found)} alert(s)")
 
 
 @alerts.command("ack")
 @click.argument("alert_id", metavar="ID", type=int)
-@click.option("--by", "by", required=True, metavar="NAME", help="Who acknowledges it.")
+@click.option(
+    "--by",
+    "by",
+    required=True,
+    metavar="NAME",
+    help="Who acknowledges it.",
+    callback=identifier_option,
+)
 @database_option
 @click.pass_context
 def ack_command(ctx: click.Context, alert_id: int, by: str) -> None:
@@ -172,12 +182,14 @@ def ack_command(ctx: click.Context, alert_id: int, by: str) -> None:
 
     with app_of(ctx).database() as engine, session_scope(engine) as session:
         alert = acknowledge_alert(session, alert_id, by, _now())
-    click.echo(f"alert {alert.id} acknowledged by {alert.acknowledged_by}")
+    click.echo(printable(f"alert {alert.id} acknowledged by {alert.acknowledged_by}"))
 
 
 @alerts.command("resolve")
 @click.argument("alert_id", metavar="ID", type=int)
-@click.option("--by", "by", required=True, metavar="NAME", help="Who resolves it.")
+@click.option(
+    "--by", "by", required=True, metavar="NAME", help="Who resolves it.", callback=identifier_option
+)
 @click.option("--note", help="Why (kept in the alert's details).")
 @database_option
 @click.pass_context
@@ -236,8 +248,8 @@ def _moment(text: str | None) -> datetime:
 
 
 @maintenance.command("record")
-@click.option("--line", required=True, metavar="L", help="Line code.")
-@click.option("--track", required=True, metavar="T", help="Track code.")
+@click.option("--line", required=True, metavar="L", help="Line code.", callback=identifier_option)
+@click.option("--track", required=True, metavar="T", help="Track code.", callback=identifier_option)
 @click.option("--from-mast", metavar="M1", help="First mast of the stretch.")
 @click.option("--to-mast", metavar="M2", help="Last mast of the stretch.")
 @click.option("--from-m", type=float, metavar="X", help="Start chainage [m] (without masts).")
@@ -249,7 +261,14 @@ def _moment(text: str | None) -> datetime:
     help=f"What was done: {', '.join(MAINTENANCE_KINDS)} ({', '.join(REPAIR_KINDS)} resolve "
     "the alerts on the stretch).",
 )
-@click.option("--by", "by", required=True, metavar="NAME", help="Who did or records the work.")
+@click.option(
+    "--by",
+    "by",
+    required=True,
+    metavar="NAME",
+    help="Who did or records the work.",
+    callback=identifier_option,
+)
 @click.option("--wire", type=int, metavar="N", help="Wire position in the spans (default: all).")
 @click.option("--at", "at", metavar="ISO8601", help="When the work was done (default: now; UTC).")
 @click.option("--note", help="A note kept with the action.")

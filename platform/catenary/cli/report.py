@@ -13,6 +13,7 @@ import click
 from catenary.cli.app import app_of
 from catenary.errors import UserError
 from catenary.plugins import PluginRegistry, database_option
+from catenary.text import identifier_option
 
 __all__ = ["report"]
 
@@ -41,8 +42,10 @@ def _list(registry: PluginRegistry) -> None:
 @click.argument("runs", nargs=-1, metavar="[RUN]...")
 @click.option("--run", "more_runs", multiple=True, metavar="RUN", help="A run id or 'latest'.")
 @click.option("--latest", is_flag=True, help="The last processed run (as RUN 'latest').")
-@click.option("--line", metavar="CODE", help="Line code.")
-@click.option("--track", metavar="CODE", help="Track code (with --line).")
+@click.option("--line", metavar="CODE", help="Line code.", callback=identifier_option)
+@click.option(
+    "--track", metavar="CODE", help="Track code (with --line).", callback=identifier_option
+)
 @click.option(
     "--policy",
     "policy_name",

@@ -11,6 +11,7 @@ import click
 
 from catenary.cli.app import INTERRUPTED_EXIT_CODE, app_of
 from catenary.plugins import database_option
+from catenary.text import identifier_option, printable
 
 if TYPE_CHECKING:
     from catenary.domain import RunHeader
@@ -34,8 +35,8 @@ __all__ = ["compare", "export", "process"]
     help="Mast register CSV: spans cut at its masts, chainage aligned to them.",
 )
 @click.option("--wire-type", help="Wire type of the whole run (default: the register's).")
-@click.option("--line", help="Line code (default: the run file's).")
-@click.option("--track", help="Track code (default: the run file's).")
+@click.option("--line", help="Line code (default: the run file's).", callback=identifier_option)
+@click.option("--track", help="Track code (default: the run file's).", callback=identifier_option)
 @click.option(
     "--processor",
     default="linescan-stereo",
@@ -99,7 +100,7 @@ def process(
         )
         return
     try:
-        with open_database(settings.database_url) as engine:
+        with open_database(settings) as engine:
             alerts = evaluate_stored_run(alerting, engine, settings, app.registry, result.run_id)
     except KeyboardInterrupt:  # the run is committed: say so, and what is left to do
         click.echo(
@@ -109,7 +110,7 @@ def process(
         )
         ctx.exit(INTERRUPTED_EXIT_CODE)
     for text in [*result.summary_lines(), *run_alerts_lines(alerts)]:
-        click.echo(text)
+        click.echo(printable(text))
     click.echo(f"stored as run {result.run_id}")
 
 
@@ -153,7 +154,7 @@ def compare(ctx: click.Context, run_a: str, run_b: str) -> None:
 
     settings = app_of(ctx).settings
     with (
-        open_database(settings.database_url) as engine,
+        open_database(settings) as engine,
         session_scope(engine, read_only=True) as session,
     ):
         a, b = find_run(session, run_a), find_run(session, run_b)

@@ -12,6 +12,7 @@ import click
 
 from catenary.cli.app import app_of
 from catenary.plugins import database_option
+from catenary.text import printable
 
 if TYPE_CHECKING:
     from catenary.maintenance.notifications import (
@@ -54,12 +55,12 @@ def deliver_command(ctx: click.Context) -> None:
     if not notification_config(settings).channels:
         click.echo("no notification channels configured ([[notifications.channels]])")
         return
-    with open_database(settings.database_url) as engine:
+    with open_database(settings) as engine:
         report = deliver_pending(lambda: session_scope(engine), app.registry, settings)
     for channel, reason in report.unavailable.items():
-        click.echo(f"channel {channel}: {reason}; its notifications wait", err=True)
+        click.echo(printable(f"channel {channel}: {reason}; its notifications wait"), err=True)
     for attempt in report.attempts:
-        click.echo(_describe(attempt))
+        click.echo(printable(_describe(attempt)))
     sent = sum(attempt.sent for attempt in report.attempts)
     gave_up = sum(attempt.gave_up for attempt in report.attempts)
     failed = len(report.attempts) - sent - gave_up
@@ -95,7 +96,7 @@ def status_command(ctx: click.Context) -> None:
     settings = app_of(ctx).settings
     configured = {channel.name for channel in notification_config(settings).channels}
     with (
-        open_database(settings.database_url) as engine,
+        open_database(settings) as engine,
         session_scope(engine, read_only=True) as session,
     ):
         rows = undelivered(session)
@@ -104,7 +105,7 @@ def status_command(ctx: click.Context) -> None:
         click.echo("every notification is sent")
         return
     for line in lines:
-        click.echo(line)
+        click.echo(printable(line))
     failed = sum(row.status == "failed" for row in rows)
     click.echo(f"{len(rows) - failed} pending, {failed} failed")
 

@@ -342,7 +342,7 @@ def serve(
 ) -> None:
     """Run the scheduler until SIGTERM or SIGINT: the body of ``catenary scheduler``."""
     config = scheduler_config(settings)
-    with open_database(settings.database_url) as engine:
+    with open_database(settings) as engine:
         context = JobContext(settings, registry, engine, config.timezone, clock)
         scheduler, store = make_scheduler(engine, config, context)
         if not config.jobs:

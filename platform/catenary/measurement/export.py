@@ -26,7 +26,7 @@ def export_run(settings: Settings, reference: str, what: str, output: Path) -> t
     if output.suffix.lower() not in (".csv", ".parquet"):
         raise UserError(f"{output}: the output's suffix must be .csv or .parquet")
     with (
-        open_database(settings.database_url) as engine,
+        open_database(settings) as engine,
         session_scope(engine, read_only=True) as session,
     ):
         run = find_run(session, reference)

@@ -23,10 +23,13 @@ import numpy as np
 
 from catenary.domain import TrackRegister
 from catenary.errors import FormatError, UserError
+from catenary.text import control_character_problem
 
 __all__ = ["REQUIRED_COLUMNS", "MastRegister", "read_register"]
 
 REQUIRED_COLUMNS = ("line", "track", "mast", "chainage_m", "wire_type")
+IDENTIFIER_COLUMNS = ("line", "track", "mast", "anchor_section")
+"""Columns holding identifiers: printable text, no control characters (FORMATS.md)."""
 
 
 @dataclass(frozen=True)
@@ -117,6 +120,10 @@ def read_register(path: str | Path, wire_types: Iterable[str] | None = None) -> 
                 for field in ("line", "track", "mast", "wire_type"):
                     if not values.get(field):
                         raise FormatError(file, f"row {number}: {field} is empty")
+                for field in IDENTIFIER_COLUMNS:
+                    problem = control_character_problem(field, values.get(field, ""))
+                    if problem is not None:
+                        raise FormatError(file, f"row {number}: {problem}")
                 if known is not None and values["wire_type"] not in known:
                     raise FormatError(
                         file,

@@ -76,6 +76,7 @@ from numpy.typing import ArrayLike
 from catenary.arrays import BoolArray, FloatArray, UInt8Array, UInt16Array
 from catenary.domain import DEFAULT_BLOCK_SCANS, CameraLines, RunHeader, ScanBlock, VehicleSamples
 from catenary.errors import FormatError, UserError
+from catenary.text import control_character_problem
 
 __all__ = [
     "DEFAULT_COMPRESSION",
@@ -739,9 +740,9 @@ class RunFile:
                 f"/ attribute format_version = {int(version)}: unknown version "
                 f"(this version of catenary reads format_version {FORMAT_VERSION})"
             )
-        line = self._attr_str("line")
-        track = self._attr_str("track")
-        vehicle = self._attr_str("vehicle")
+        line = self._attr_identifier("line")
+        track = self._attr_identifier("track")
+        vehicle = self._attr_identifier("vehicle")
         direction = self._attr_str("direction")
         if direction not in DIRECTIONS:
             raise self._fail(
@@ -852,6 +853,13 @@ class RunFile:
         if isinstance(value, str):
             return value
         raise self._fail(f"/ attribute {name} = {_show(value)}, expected a string")
+
+    def _attr_identifier(self, name: str) -> str:
+        value = self._attr_str(name)
+        problem = control_character_problem(f"/ attribute {name}", value)
+        if problem is not None:
+            raise self._fail(problem)
+        return value
 
     def _attr_float(self, name: str) -> float:
         value = self._attr(name)

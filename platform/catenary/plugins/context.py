@@ -65,7 +65,7 @@ class CommandContext:
         one line, a database whose schema is not at the head revision."""
         from catenary.storage.database import open_database
 
-        with open_database(self.settings.database_url, migrated=migrated) as engine:
+        with open_database(self.settings, migrated=migrated) as engine:
             yield engine
 
 

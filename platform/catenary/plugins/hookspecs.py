@@ -162,11 +162,12 @@ def catenary_commands() -> Iterable[Command]:
 
 @hookspec
 def catenary_run_stored(run_id: int, database_url: str) -> None:
-    """Called after a run and its span measurements are committed to the database::
+    """Called after a run and its span measurements are committed to the database (the URL may
+    hold a password: show it only through ``catenary.storage.database.mask_url``)::
 
     @hookimpl
     def catenary_run_stored(run_id, database_url):
-        log.info("run %d stored in %s", run_id, database_url)
+        log.info("run %d stored in %s", run_id, mask_url(database_url))
     """
 
 

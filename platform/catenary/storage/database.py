@@ -8,6 +8,7 @@ masked.
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -19,6 +20,7 @@ from sqlalchemy.engine import URL, Connection, make_url
 from sqlalchemy.exc import ArgumentError, DBAPIError, NoSuchModuleError
 from sqlalchemy.orm import Session
 
+from catenary.config import DEFAULT_CONNECT_TIMEOUT_S, Settings
 from catenary.errors import DatabaseNotMigrated, UserError
 
 #: How long a SQLite connection waits for another process's lock before giving up.
@@ -28,17 +30,24 @@ SQLITE_BUSY_TIMEOUT_MS = 30_000
 #: begins them deferred; see ``_begin_sqlite_transaction``).
 READ_ONLY = "catenary_read_only"
 
-_PASSWORD_IN_URL = re.compile(r"(//[^/?#@:]*:)[^/?#@]*@")
+# For a URL that does not parse: everything from the user's ":" to the last "@" (greedy, so a
+# password holding "@", "/" or "?" is masked whole).
+_PASSWORD_IN_URL = re.compile(r"^((?:[^/?#@]*//)?[^/?#@:]*:(?!//)).*@")
+# A query parameter holding a secret (libpq's ``password``, ``sslpassword``, ...).
+_SECRET_IN_QUERY = re.compile(r"(?i)([?&][^=&#]*pass[^=&#]*=)[^&#]*")
 
 
 def mask_url(url: str | URL) -> str:
-    """``url`` as text, with any password replaced by ``***`` (for messages and logs)."""
+    """``url`` as text, with any password (in the URL's user part or its query) replaced by
+    ``***``, whether or not it parses (for messages and logs)."""
     if isinstance(url, URL):
-        return url.render_as_string(hide_password=True)
-    try:
-        return make_url(url).render_as_string(hide_password=True)
-    except ArgumentError:
-        return _PASSWORD_IN_URL.sub(r"\1***@", url)
+        text = url.render_as_string(hide_password=True)
+    else:
+        try:
+            text = make_url(url).render_as_string(hide_password=True)
+        except (ArgumentError, ValueError):  # ValueError: a port that is not a number
+            text = _PASSWORD_IN_URL.sub(r"\1***@", url)
+    return _SECRET_IN_QUERY.sub(r"\1***", text)
 
 
 def one_line(exc: BaseException) -> str:
@@ -60,7 +69,7 @@ def _sqlite_file(url: URL) -> Path | None:
     return Path(database)
 
 
-def make_engine(url: str) -> Engine:
+def make_engine(url: str, *, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S) -> Engine:
     """An engine for ``url``.
 
     SQLite: ``~`` in the path is expanded, the file's directory is created, foreign keys are
@@ -71,7 +80,9 @@ def make_engine(url: str) -> Engine:
     read-only (``session_scope(engine, read_only=True)``, ``connected(engine,
     read_only=True)``) begins deferred. Other
     backends: connections are checked before use (``pool_pre_ping``), so a long-running service
-    survives a server restart.
+    survives a server restart; PostgreSQL: connecting gives up after ``connect_timeout_s``
+    (whole seconds, at least 2: libpq's minimum), so a server that accepts and never answers
+    is a one-line error, not a hang.
 
     Raises ``UserError`` for a malformed URL, an unknown or missing driver, or a SQLite directory
     that cannot be created.
@@ -83,6 +94,10 @@ def make_engine(url: str) -> Engine:
             f"malformed database URL {mask_url(url)!r}: expected e.g. "
             "sqlite:////path/catenary.sqlite or postgresql+psycopg://user@host/database"
         ) from None
+    except ValueError:
+        raise UserError(
+            f"malformed database URL {mask_url(url)!r}: the port is not a number"
+        ) from None
     options: dict[str, Any] = {}
     sqlite_file = None
     if parsed.get_backend_name() == "sqlite":
@@ -92,6 +107,8 @@ def make_engine(url: str) -> Engine:
             parsed = parsed.set(database=str(sqlite_file))
     else:
         options["pool_pre_ping"] = True
+    if parsed.get_backend_name() == "postgresql":
+        options["connect_args"] = {"connect_timeout": max(2, math.ceil(connect_timeout_s))}
     where = mask_url(parsed)
     try:
         engine = create_engine(parsed, **options)
@@ -166,15 +183,19 @@ def connected(engine: Engine, *, read_only: bool = False) -> Iterator[Connection
 
 
 @contextmanager
-def open_database(url: str, *, migrated: bool = True) -> Iterator[Engine]:
-    """An engine for ``url``, disposed of on exit; checked to be migrated unless told not to.
+def open_database(database: Settings | str, *, migrated: bool = True) -> Iterator[Engine]:
+    """An engine for ``database`` (the settings' database, with their connect timeout, or a
+    URL), disposed of on exit; checked to be migrated unless told not to.
 
     The usual start of a command::
 
-        with open_database(settings.database_url) as engine, session_scope(engine) as session:
+        with open_database(settings) as engine, session_scope(engine) as session:
             ...
     """
-    engine = make_engine(url)
+    if isinstance(database, str):
+        engine = make_engine(database)
+    else:
+        engine = make_engine(database.database_url, connect_timeout_s=database.connect_timeout_s)
     try:
         if migrated:
             require_migrated(engine)

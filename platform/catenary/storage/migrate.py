@@ -26,13 +26,26 @@ from alembic.config import Config
 from alembic.runtime.migration import MigrationContext
 from alembic.script import ScriptDirectory
 from alembic.util.exc import CommandError
-from sqlalchemy import Column, Constraint, Engine, Index, Table
+from sqlalchemy import Column, Constraint, Engine, Index, Table, select
 from sqlalchemy.engine import Connection
 from sqlalchemy.exc import DBAPIError
+from sqlalchemy.orm import InstrumentedAttribute
 
 from catenary.errors import UserError
 from catenary.storage.database import connected, mask_url, one_line
-from catenary.storage.models import EXTERNAL_TABLES, Base, UTCDateTime
+from catenary.storage.models import (
+    EXTERNAL_TABLES,
+    Alert,
+    Base,
+    Line,
+    MaintenanceAction,
+    Mast,
+    SpanMeasurement,
+    Track,
+    UTCDateTime,
+    Vehicle,
+)
+from catenary.text import control_character_problem
 
 MIGRATIONS_PACKAGE = "catenary_migrations"
 
@@ -194,6 +207,37 @@ def check_models_match(engine: Engine) -> list[str]:
             connection, opts=context_options(connection.dialect.name)
         )
         return [_describe(diff) for diff in compare_metadata(context, Base.metadata)]
+
+
+#: Columns holding identifiers and names given at input: printable text (FORMATS.md).
+IDENTIFIER_COLUMNS: tuple[InstrumentedAttribute[Any], ...] = (
+    Line.code,
+    Track.code,
+    Mast.code,
+    Mast.anchor_section,
+    Vehicle.name,
+    SpanMeasurement.mast_from,
+    SpanMeasurement.mast_to,
+    MaintenanceAction.mast_from,
+    MaintenanceAction.mast_to,
+    MaintenanceAction.recorded_by,
+    Alert.mast_from,
+    Alert.mast_to,
+    Alert.acknowledged_by,
+)
+
+
+def identifiers_with_control_characters(engine: Engine) -> list[str]:
+    """The stored identifiers holding control characters (rows stored before they were refused
+    at input), one line each naming the table, the column and the value (escaped)."""
+    found: list[str] = []
+    with connected(engine) as connection:
+        for column in IDENTIFIER_COLUMNS:
+            values = connection.scalars(select(column).where(column.is_not(None)).distinct())
+            where = f"{column.class_.__tablename__}.{column.key}"
+            problems = (control_character_problem(where, value) for value in sorted(values))
+            found.extend(problem for problem in problems if problem is not None)
+    return found
 
 
 def _describe(diff: Any) -> str:

@@ -71,7 +71,12 @@ def test_the_message_names_the_alert(
         rule="db-ril-997#3",
     )
     settings = make_settings(
-        email_config(smtp_server, username="catenary", password_env="TEST_SMTP_PASSWORD")
+        email_config(
+            smtp_server,
+            username="catenary",
+            password_env="TEST_SMTP_PASSWORD",
+            allow_plain_auth=True,
+        )
     )
 
     (attempt,) = deliver(engine, registry, settings).attempts
@@ -113,16 +118,38 @@ def test_the_message_names_the_alert(
             "environment variable that holds it in password_env",
         ),
         (
-            {"username": "catenary", "password_env": "TEST_SMTP_PASSWORD"},
+            {
+                "username": "catenary",
+                "password_env": "TEST_SMTP_PASSWORD",
+                "allow_plain_auth": True,
+            },
             None,
             "email settings: environment variable TEST_SMTP_PASSWORD (password_env) is not set",
         ),
         (
             {"username": "catenary", "password_env": "TEST_SMTP_PASSWORD"},
+            "s3cret",
+            'email settings: security = "none" with a username would send the password in clear',
+        ),
+        (
+            {"username": "catenary", "password_env": "TEST_SMTP_PASSWORD", "allow_plain_auth": 1},
+            "s3cret",
+            "email settings: allow_plain_auth must be true or false, not 1",
+        ),
+        (
+            {
+                "username": "catenary",
+                "password_env": "TEST_SMTP_PASSWORD",
+                "allow_plain_auth": True,
+            },
             "wrong",
             "SMTPAuthenticationError: (535, ",
         ),
-        ({"hots": "smtp"}, None, "email settings: unknown key 'hots' (known: ca_file, from, "),
+        (
+            {"hots": "smtp"},
+            None,
+            "email settings: unknown key 'hots' (known: allow_plain_auth, ca_file, ",
+        ),
         ({"security": "tls"}, None, "email settings: security must be one of starttls, ssl, none"),
         ({"to": "ops@example.org"}, None, "email settings: to must be a list of addresses"),
     ],

@@ -8,9 +8,11 @@ from typing import Any
 
 import tomli_w
 from click.testing import CliRunner, Result
-from sqlalchemy import Engine
+from sqlalchemy import Engine, select
 
 from catenary.cli import cli
+from catenary.storage.database import session_scope
+from catenary.storage.models import Alert, AlertNotification
 
 
 def catenary(config: Path, database_url: str, *args: str) -> Result:
@@ -94,3 +96,17 @@ def test_errors_are_one_line(engine: Engine, tmp_path: Path, database_url: str) 
     assert result.exit_code == 1
     assert "is not migrated" in result.output
     assert len(result.output.splitlines()) == 1
+
+
+def test_status_escapes_control_characters_of_stored_names(
+    engine: Engine, alerts: Any, tmp_path: Path, database_url: str
+) -> None:
+    alerts("a", mast_from="M1\x1b[2J", mast_to="M2\r\n")
+    config = write_config(tmp_path / "c.toml", {})
+    with session_scope(engine) as session:
+        (alert,) = session.scalars(select(Alert)).all()
+        session.add(AlertNotification(alert=alert, notifier="hook", status="pending"))
+    result = catenary(config, database_url, "notify", "status")
+    assert result.exit_code == 0, result.output
+    row, _summary = result.output.splitlines()
+    assert "masts M1\\x1b[2J-M2\\r\\n wire 0 -> hook" in row
