@@ -4,8 +4,9 @@ from __future__ import annotations
 
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 
 import pytest
 import sqlalchemy as sa
@@ -23,6 +24,33 @@ def counter(engine: Engine) -> Engine:
         connection.exec_driver_sql("CREATE TABLE counter (n INTEGER NOT NULL)")
         connection.exec_driver_sql("INSERT INTO counter VALUES (0)")
     return engine
+
+
+@contextmanager
+def _writer_holding_the_lock(database_url: str, statement: str) -> Iterator[None]:
+    """A transaction in another thread that has run ``statement`` and holds its write lock
+    (uncommitted) until the block ends."""
+    holding = threading.Event()
+    release = threading.Event()
+
+    def hold() -> None:
+        engine = make_engine(database_url)
+        try:
+            with session_scope(engine) as session:
+                session.execute(sa.text(statement))
+                holding.set()
+                release.wait(20)
+        finally:
+            engine.dispose()
+
+    with ThreadPoolExecutor(1) as pool:
+        writer = pool.submit(hold)
+        try:
+            assert holding.wait(20)
+            yield
+        finally:
+            release.set()
+            writer.result(timeout=30)
 
 
 def _in_threads(count: int, work: Callable[[], object]) -> list[object]:
@@ -54,35 +82,16 @@ def test_a_reader_does_not_wait_for_a_writer(
     counter: Engine, database_url: str, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setattr(database, "SQLITE_BUSY_TIMEOUT_MS", 2_000)
-    holding = threading.Event()
-    release = threading.Event()
-
-    def hold() -> None:
-        engine = make_engine(database_url)
+    with _writer_holding_the_lock(database_url, "UPDATE counter SET n = 7"):
+        reader = make_engine(database_url)
         try:
-            with session_scope(engine) as session:
-                session.execute(sa.text("UPDATE counter SET n = 7"))
-                holding.set()
-                release.wait(20)
+            started = time.monotonic()
+            with session_scope(reader, read_only=True) as session:
+                seen = session.execute(sa.text("SELECT n FROM counter")).scalar_one()
+            assert seen == 0  # the writer's change is not committed yet
+            assert time.monotonic() - started < 1.5
         finally:
-            engine.dispose()
-
-    with ThreadPoolExecutor(1) as pool:
-        writer = pool.submit(hold)
-        try:
-            assert holding.wait(20)
-            reader = make_engine(database_url)
-            try:
-                started = time.monotonic()
-                with session_scope(reader, read_only=True) as session:
-                    seen = session.execute(sa.text("SELECT n FROM counter")).scalar_one()
-                assert seen == 0  # the writer's change is not committed yet
-                assert time.monotonic() - started < 1.5
-            finally:
-                reader.dispose()
-        finally:
-            release.set()
-            writer.result(timeout=30)
+            reader.dispose()
 
 
 def test_sqlite_writers_begin_immediate_and_readers_deferred(tmp_path: object) -> None:
@@ -108,25 +117,6 @@ def test_read_only_commands_do_not_wait_for_a_writer(
 ) -> None:
     # a command that waited for the writer would fail with "database is locked" after 0.5 s
     monkeypatch.setattr(database, "SQLITE_BUSY_TIMEOUT_MS", 500)
-    holding = threading.Event()
-    release = threading.Event()
-
-    def hold() -> None:
-        engine = make_engine(database_url)
-        try:
-            with session_scope(engine) as session:
-                session.execute(sa.text("DELETE FROM alerts"))
-                holding.set()
-                release.wait(20)
-        finally:
-            engine.dispose()
-
-    with ThreadPoolExecutor(1) as pool:
-        writer = pool.submit(hold)
-        try:
-            assert holding.wait(20)
-            result = CliRunner().invoke(cli, ["--db", database_url, *command])
-            assert result.exit_code == 0, result.output
-        finally:
-            release.set()
-            writer.result(timeout=30)
+    with _writer_holding_the_lock(database_url, "DELETE FROM alerts"):
+        result = CliRunner().invoke(cli, ["--db", database_url, *command])
+        assert result.exit_code == 0, result.output
