@@ -22,3 +22,9 @@ class FormatError(UserError):
 
 class DatabaseNotMigrated(UserError):
     """The database's schema is not at the revision this version of catenary needs."""
+
+
+def one_line(exc: BaseException) -> str:
+    """``Type: message`` of an exception, its message's whitespace (newlines) collapsed."""
+    text = " ".join(str(exc).split())
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__

@@ -75,7 +75,7 @@ import cantools
 import numpy as np
 
 from catenary.domain import VehicleSamples
-from catenary.errors import UserError
+from catenary.errors import UserError, one_line
 
 from .decode import (
     CHANNELS,
@@ -142,11 +142,6 @@ class CanStatistics:
     last_error: str | None = None
 
 
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-
-
 def load_database(path: str | Path = DBC_PATH) -> Any:
     """Load a DBC and check it has the two sensor frames and their signals (``UserError``)."""
     path = Path(path)
@@ -155,7 +150,7 @@ def load_database(path: str | Path = DBC_PATH) -> Any:
     try:
         database: Any = cantools.database.load_file(str(path), database_format="dbc")
     except Exception as exc:
-        raise UserError(f"{path}: not a readable DBC file ({_one_line(exc)})") from None
+        raise UserError(f"{path}: not a readable DBC file ({one_line(exc)})") from None
     for frame, signals in (
         (DISPLACEMENT_FRAME, DISPLACEMENT_SIGNALS),
         (ENCODER_FRAME, ENCODER_SIGNALS),
@@ -233,7 +228,7 @@ class FrameDecoder:
                 stats.encoder_frames += 1
         except Exception as exc:  # short payload, a signal missing: a frame lost, not a crash
             stats.malformed_frames += 1
-            stats.last_error = f"frame 0x{key[0]:X}: {_one_line(exc)}"
+            stats.last_error = f"frame 0x{key[0]:X}: {one_line(exc)}"
             return
         self._last_t[key] = time_s
         names = list(columns)
@@ -322,7 +317,7 @@ class _LogFeed:
                 ".db, .log, .mf4, .trc, optionally .gz)"
             ) from None
         except Exception as exc:
-            raise UserError(f"{path}: cannot read CAN log ({_one_line(exc)})") from None
+            raise UserError(f"{path}: cannot read CAN log ({one_line(exc)})") from None
         self._path = path
         self._frames = 0
         self._iter: Iterator[can.Message] = iter(self._reader)
@@ -337,7 +332,7 @@ class _LogFeed:
             return None
         except Exception as exc:
             self.exhausted = True
-            self.error = f"{self._path}: unreadable after frame {self._frames} ({_one_line(exc)})"
+            self.error = f"{self._path}: unreadable after frame {self._frames} ({one_line(exc)})"
             return None
         self._frames += 1
         return msg
@@ -368,14 +363,14 @@ class _QueueListener(can.Listener):
             self.overflow += 1
         except Exception as exc:
             self.errors += 1
-            self.last_error = _one_line(exc)
+            self.last_error = one_line(exc)
 
     def on_error(self, exc: Exception) -> None:
         # Called in the notifier's thread when receiving fails; handled here (so the thread
         # carries on) with a short back-off, so a bus that went down does not spin a core.
         with contextlib.suppress(Exception):
             self.bus_errors += 1
-            self.last_error = f"bus error: {_one_line(exc)}"
+            self.last_error = f"bus error: {one_line(exc)}"
             time.sleep(ERROR_BACKOFF_S)
 
     def stop(self) -> None:
@@ -396,7 +391,7 @@ class _BusFeed:
         try:
             self._bus: Any = can.Bus(interface=interface, ignore_config=True, **kwargs)
         except Exception as exc:  # unknown interface, missing driver, no such channel, ...
-            raise UserError(f"CAN {where}: cannot open ({_one_line(exc)})") from None
+            raise UserError(f"CAN {where}: cannot open ({one_line(exc)})") from None
         self._listener = _QueueListener(maxsize)
         self._notifier = self._start_notifier()
         self._restarts = 0
@@ -428,7 +423,7 @@ class _BusFeed:
         if self._closed or self.exhausted or self._notifier_alive():
             return
         cause = self._notifier.exception
-        reason = f" ({_one_line(cause)})" if cause is not None else ""
+        reason = f" ({one_line(cause)})" if cause is not None else ""
         with contextlib.suppress(Exception):
             self._notifier.stop(timeout=NOTIFIER_TIMEOUT_S)
         if self._restarts >= MAX_NOTIFIER_RESTARTS:

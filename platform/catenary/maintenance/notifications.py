@@ -36,7 +36,7 @@ from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import Session, joinedload
 
 from catenary.config import Settings
-from catenary.errors import UserError
+from catenary.errors import UserError, one_line
 from catenary.limits import LEVELS
 from catenary.plugins import PluginRegistry
 from catenary.plugins.manager import PluginFailure, plugin_errors
@@ -222,11 +222,6 @@ class DeliveryReport:
     """Channels whose notifier is not installed, with why: their deliveries wait."""
 
 
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
-
-
 def send_bounded(notifier: Notifier, alert: AlertRecord, channel: Channel) -> str | None:
     """Call ``notifier.send`` for ``channel`` inside the plugins' error boundary, giving up
     after the channel's timeout; return None if it returned, else its error in one line.
@@ -243,7 +238,7 @@ def send_bounded(notifier: Notifier, alert: AlertRecord, channel: Channel) -> st
         except PluginFailure as failure:
             outcome.append(failure.detail)
         except Exception as exc:  # an error the user can act on, said as it is
-            outcome.append(_one_line(exc))
+            outcome.append(one_line(exc))
         else:
             outcome.append(None)
 

@@ -21,7 +21,7 @@ from typing import Any, TypeVar
 import click
 import pluggy
 
-from catenary.errors import UserError
+from catenary.errors import UserError, one_line
 from catenary.limits import LimitPolicy
 from catenary.plugins import hookspecs
 from catenary.plugins.types import (
@@ -52,11 +52,6 @@ class PluginError:
 
     def __str__(self) -> str:
         return f"plugin {self.plugin!r} ({self.stage}): {self.message}"
-
-
-def _one_line(exc: BaseException) -> str:
-    text = " ".join(str(exc).split())
-    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
 
 
 class PluginFailure(UserError):
@@ -91,9 +86,9 @@ def plugin_errors(what: str) -> Iterator[None]:
     except OSError as exc:
         if exc.filename:
             raise
-        raise PluginFailure(what, _one_line(exc)) from exc
+        raise PluginFailure(what, one_line(exc)) from exc
     except Exception as exc:
-        raise PluginFailure(what, _one_line(exc)) from exc
+        raise PluginFailure(what, one_line(exc)) from exc
 
 
 class PluginRegistry:
@@ -135,7 +130,7 @@ class PluginRegistry:
             try:
                 plugin = ep.load()
             except Exception as exc:
-                self.errors.append(PluginError(ep.name, "load", _one_line(exc)))
+                self.errors.append(PluginError(ep.name, "load", one_line(exc)))
                 continue
             self._register(ep.name, plugin)
 
@@ -148,7 +143,7 @@ class PluginRegistry:
         try:
             self._pm.register(plugin, name=name)
         except Exception as exc:
-            self.errors.append(PluginError(name, "load", _one_line(exc)))
+            self.errors.append(PluginError(name, "load", one_line(exc)))
 
     def _check_pending(self) -> None:
         """Unregister plugins whose hook implementations match no specification."""
@@ -158,7 +153,7 @@ class PluginRegistry:
                 return
             except pluggy.PluginValidationError as exc:
                 name = self._pm.get_name(exc.plugin) or repr(exc.plugin)
-                self.errors.append(PluginError(name, "load", _one_line(exc)))
+                self.errors.append(PluginError(name, "load", one_line(exc)))
                 self._pm.unregister(exc.plugin)
 
     @property
@@ -177,7 +172,7 @@ class PluginRegistry:
                 result = impl.function()
                 items = [] if result is None else list(result)
             except Exception as exc:
-                self.errors.append(PluginError(plugin, hook, _one_line(exc)))
+                self.errors.append(PluginError(plugin, hook, one_line(exc)))
                 continue
             for item in items:
                 if not isinstance(item, cls):
@@ -261,7 +256,7 @@ class PluginRegistry:
             try:
                 call(**kwargs)
             except Exception as exc:
-                self.errors.append(PluginError(impl.plugin_name, hook, _one_line(exc)))
+                self.errors.append(PluginError(impl.plugin_name, hook, one_line(exc)))
 
     def run_stored(self, run_id: int, database_url: str) -> None:
         """Tell every plugin that a run was committed."""
