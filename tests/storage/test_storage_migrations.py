@@ -43,6 +43,7 @@ def test_models_have_every_table_of_the_storage_sketch() -> None:
         "alerts",
         "maintenance_actions",
         "alert_notifications",
+        "scheduler_leases",
     }
 
 

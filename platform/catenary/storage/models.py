@@ -265,6 +265,9 @@ class Run(Base):
     encoder_scale: Mapped[float | None] = mapped_column(Float)
     alignment_matched: Mapped[int | None] = mapped_column(Integer)
     alignment_rms_m: Mapped[float | None] = mapped_column(Float)
+    # when the run's track was last evaluated for alerts with this run in it; None: pending
+    # (runs stored before this column count as pending)
+    alerts_evaluated_at: Mapped[datetime | None] = mapped_column(index=True)
 
     line: Mapped[Line] = relationship()
     track: Mapped[Track | None] = relationship()
@@ -460,3 +463,25 @@ class AlertNotification(Base):
     updated_at: Mapped[datetime] = mapped_column(default=utc_now, onupdate=utc_now)
 
     alert: Mapped[Alert] = relationship(back_populates="notifications")
+
+
+# --- services -------------------------------------------------------------------------------
+
+
+class SchedulerLease(Base):
+    """The lease that the running ``catenary scheduler`` of a database holds, renewed by its
+    heartbeat: a second scheduler waits as a standby until ``expires_at`` has passed.
+
+    ``holder`` names the holder for people (``host:pid``); ``name`` is the lease's name (one
+    row per service that must run once per database).
+    """
+
+    __tablename__ = "scheduler_leases"
+
+    name: Mapped[str] = mapped_column(String(64), primary_key=True)
+    holder: Mapped[str] = mapped_column(String(NAME_LENGTH))
+    host: Mapped[str] = mapped_column(String(NAME_LENGTH))
+    pid: Mapped[int] = mapped_column(Integer)
+    acquired_at: Mapped[datetime]
+    heartbeat_at: Mapped[datetime]
+    expires_at: Mapped[datetime]
