@@ -78,6 +78,15 @@ options = { horizon_days = "180" }
 def test_defaults(tmp_path: Path) -> None:
     config = scheduler_config(settings_with(tmp_path, ""))
     assert (config.timezone.key, config.misfire_grace_minutes, config.jobs) == ("UTC", 360, ())
+    assert (config.lease.lease_s, config.lease.heartbeat_s) == (30, 10)
+
+
+def test_the_heartbeat_is_a_third_of_the_lease_unless_given(tmp_path: Path) -> None:
+    config = scheduler_config(settings_with(tmp_path, "[scheduler]\nlease_seconds = 6"))
+    assert (config.lease.lease_s, config.lease.heartbeat_s) == (6, 2)
+    text = "[scheduler]\nlease_seconds = 45\nheartbeat_seconds = 0.1"
+    config = scheduler_config(settings_with(tmp_path, text))
+    assert (config.lease.lease_s, config.lease.heartbeat_s) == (45, 0.1)
 
 
 def test_report_output_paths(tmp_path: Path) -> None:
@@ -98,11 +107,29 @@ JOB = '[[scheduler.jobs]]\nid = "j"\n'
     [
         (
             "[scheduler]\ntz = 'UTC'",
-            "unknown key scheduler.tz (known: jobs, misfire_grace_minutes, ",
+            "unknown key scheduler.tz (known: heartbeat_seconds, jobs, lease_seconds, ",
         ),
         ("[scheduler]\ntimezone = 'Mars/Olympus'", "scheduler.timezone: unknown time zone 'Mars/"),
         ("[scheduler]\nmisfire_grace_minutes = 0", "scheduler.misfire_grace_minutes must be a "),
         ("[scheduler]\njobs = 3", "scheduler.jobs must be an array of tables"),
+        (
+            "[scheduler]\nlease_seconds = 60",
+            "scheduler.lease_seconds must be a number from 1 to 45, not 60",
+        ),
+        (
+            "[scheduler]\nlease_seconds = '30'",
+            "scheduler.lease_seconds must be a number from 1 to 45, not '30'",
+        ),
+        (
+            "[scheduler]\nlease_seconds = 6\nheartbeat_seconds = 3",
+            "scheduler.heartbeat_seconds (lease_seconds / 3 at most) must be a number from 0.1 "
+            "to 2, not 3",
+        ),
+        (
+            "[scheduler]\nheartbeat_seconds = 0",
+            "scheduler.heartbeat_seconds (lease_seconds / 3 at most) must be a number from 0.1 "
+            "to 10, not 0",
+        ),
         (
             "[[scheduler.jobs]]\njob = 'report'",
             "scheduler.jobs[1].id must be a string of 1 to 191 characters, not None",
