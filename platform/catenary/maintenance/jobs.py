@@ -6,7 +6,8 @@ the config. ``run_job`` is the one callable the scheduler's job store refers to
 (``catenary.maintenance.jobs:run_job``, with the kind and options as keywords); the scheduler
 service's
 executor adds the context and the fire time to each run (``catenary.maintenance.scheduler``), so a
-stored job holds no settings, secrets or connections.
+stored job holds no settings, secrets or connections. Names and errors in their log lines go
+through ``printable`` (``%r`` for names quoted as such).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from catenary.maintenance.reports import report_request
 from catenary.plugins import PluginRegistry
 from catenary.storage.database import session_scope
 from catenary.storage.models import utc_now
+from catenary.text import printable
 
 log = logging.getLogger(__name__)
 
@@ -72,7 +74,9 @@ def deliver_notifications(
     """One delivery pass (``catenary notify deliver``), logged."""
     report = deliver_pending(context.session, context.registry, context.settings, context.clock)
     for channel, reason in report.unavailable.items():
-        log.warning("notification channel %r: %s; its notifications wait", channel, reason)
+        log.warning(
+            "notification channel %r: %s; its notifications wait", channel, printable(reason)
+        )
     for attempt in report.attempts:
         if attempt.error is not None:
             retry = "gave up" if attempt.gave_up else f"retry at {attempt.next_attempt_at}"
@@ -82,7 +86,7 @@ def deliver_notifications(
                 attempt.channel,
                 attempt.attempts,
                 retry,
-                attempt.error,
+                printable(attempt.error),
             )
     sent = sum(attempt.sent for attempt in report.attempts)
     log.info("notifications: %d sent, %d failed", sent, len(report.attempts) - sent)
@@ -125,7 +129,7 @@ def write_report(context: JobContext, fire_time: datetime, options: Mapping[str,
     path.parent.mkdir(parents=True, exist_ok=True)
     with context.registry.boundary("reporter", name):
         written = reporters[name].write(request, path)
-    log.info("report %r written to %s", name, written)
+    log.info("report %r written to %s", name, printable(str(written)))
 
 
 JobFunction = Callable[[JobContext, datetime, Mapping[str, Any]], None]

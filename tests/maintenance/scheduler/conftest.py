@@ -16,12 +16,13 @@ from catenary.plugins.types import Notifier, Reporter
 
 class Fakes:
     """Reporter ``fake`` (records its calls; waits for ``hold`` if set, raises ``error`` if
-    set) and notifier ``fake``."""
+    set) and notifier ``fake`` (records its alerts; raises ``send_error`` if set)."""
 
     def __init__(self) -> None:
         self.reports: list[tuple[ReportRequest, Path]] = []
         self.sent: list[AlertRecord] = []
         self.error: Exception | None = None
+        self.send_error: Exception | None = None
         self.hold: threading.Event | None = None
 
     def write(self, request: ReportRequest, path: Path) -> Path:
@@ -33,6 +34,8 @@ class Fakes:
         return path
 
     def send(self, alert: AlertRecord, settings: Mapping[str, Any]) -> None:
+        if self.send_error is not None:
+            raise self.send_error
         self.sent.append(alert)
 
     @hookimpl

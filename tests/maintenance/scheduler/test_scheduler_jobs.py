@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 import pickle
+import re
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -13,6 +14,7 @@ from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import pytest
+from apscheduler.events import EVENT_JOB_ERROR, EVENT_JOB_EXECUTED, JobExecutionEvent
 from apscheduler.schedulers.background import BackgroundScheduler
 from sqlalchemy import Engine, select, text
 from sqlalchemy.orm import Session
@@ -22,8 +24,13 @@ from catenary.errors import UserError
 from catenary.maintenance import jobs
 from catenary.maintenance.alerts import Evaluation
 from catenary.maintenance.jobs import JobContext, run_job
-from catenary.maintenance.scheduler import make_scheduler, scheduler_config, sync_jobs
-from catenary.plugins import PluginRegistry
+from catenary.maintenance.scheduler import (
+    log_job_event,
+    make_scheduler,
+    scheduler_config,
+    sync_jobs,
+)
+from catenary.plugins import PluginFailure, PluginRegistry
 from catenary.storage.database import session_scope
 from catenary.storage.models import Alert, AlertNotification, Line, Track
 
@@ -293,10 +300,8 @@ def test_evaluate_alerts_queues_the_new_alerts_in_the_same_transaction(
     assert announced == [[row.alert_id]]
 
 
-def test_deliver_notifications_job(
-    context: JobContext, fakes: Any, caplog: pytest.LogCaptureFixture
-) -> None:
-    with session_scope(context.engine) as session:
+def add_alert(engine: Engine) -> None:
+    with session_scope(engine) as session:
         session.add(
             Alert(
                 track=Track(line=Line(code="L1"), code="1"),
@@ -311,10 +316,69 @@ def test_deliver_notifications_job(
                 condition_key="k",
             )
         )
+
+
+def test_deliver_notifications_job(
+    context: JobContext, fakes: Any, caplog: pytest.LogCaptureFixture
+) -> None:
+    add_alert(context.engine)
     with caplog.at_level(logging.INFO, "catenary.maintenance.jobs"):
         run_job("deliver-notifications", {}, context, FIRE)
     assert [alert.condition_key for alert in fakes.sent] == ["k"]
     assert caplog.messages == ["notifications: 1 sent, 0 failed"]
+
+
+HOSTILE = "L\x1b]0;owned\x07\r\n2024-05-06 INFO forged\x9b2J"
+ESCAPED = "L\\x1b]0;owned\\x07\\r\\n2024-05-06 INFO forged\\x9b2J"
+
+
+CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
+
+
+def test_the_jobs_escape_names_and_errors_in_their_log_lines(
+    context: JobContext, fakes: Any, caplog: pytest.LogCaptureFixture
+) -> None:
+    add_alert(context.engine)
+    fakes.send_error = RuntimeError(f"no route to {HOSTILE}")
+    with caplog.at_level(logging.INFO, "catenary.maintenance.jobs"):
+        run_job("deliver-notifications", {}, context, FIRE)
+        run_job("report", {"reporter": "fake", "output": f"{HOSTILE}.txt"}, context, FIRE)
+    failed, summary, written = caplog.messages
+    assert failed.startswith("alert 1 to 'fake': attempt 1 failed (retry at ")
+    # the delivery's error is one line already (its CR LF a space); its other controls escaped
+    assert failed.endswith("no route to " + ESCAPED.replace(r"\r\n", " "))
+    assert summary == "notifications: 0 sent, 1 failed"
+    assert written == f"report 'fake' written to {context.settings.data_dir}/{ESCAPED}.txt"
+    assert not any(CONTROL.search(message) for message in caplog.messages)
+
+
+def test_job_events_escape_the_names_and_errors_they_log(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    def failed(exception: BaseException) -> JobExecutionEvent:
+        trace = '  File "x\x1b]0;owned\x07.py", line 1\n    f()\n'  # its lines are kept
+        return JobExecutionEvent(
+            EVENT_JOB_ERROR, f"j{HOSTILE}", "default", FIRE, exception=exception, traceback=trace
+        )
+
+    caplog.set_level(logging.INFO, "catenary.maintenance.scheduler")
+    log_job_event(JobExecutionEvent(EVENT_JOB_EXECUTED, f"j{HOSTILE}", "default", FIRE))
+    log_job_event(failed(UserError(f"unknown line {HOSTILE}")))
+    log_job_event(failed(PluginFailure("reporter 'fake'", f"OSError: {HOSTILE}")))
+    log_job_event(failed(RuntimeError(HOSTILE)))
+    ran, user, plugin, other = caplog.messages
+    job = repr(f"j{HOSTILE}")
+    assert ran == f"job {job} ran for {FIRE.isoformat()}"
+    assert user == f"job {job} failed for {FIRE.isoformat()}: unknown line {ESCAPED}"
+    assert plugin == (
+        f"job {job} failed for {FIRE.isoformat()}: reporter 'fake' failed: OSError: {ESCAPED}\n"
+        '  File "x\\x1b]0;owned\\x07.py", line 1\n    f()'
+    )
+    assert other.startswith(f"job {job} failed for {FIRE.isoformat()}: RuntimeError: L\\x1b")
+    for message in caplog.messages:
+        first, *trace = message.split("\n")
+        assert not CONTROL.search(first), first
+        assert all(not CONTROL.search(line) for line in trace), trace
 
 
 def test_run_job_needs_the_service() -> None:
