@@ -11,6 +11,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime, timedelta
+from functools import partial
 from typing import Any
 
 import pytest
@@ -25,6 +26,7 @@ from catenary.maintenance import jobs
 from catenary.maintenance.alerts import Evaluation
 from catenary.maintenance.jobs import JobContext, run_job
 from catenary.maintenance.scheduler import (
+    LeasedScheduler,
     log_job_event,
     make_scheduler,
     scheduler_config,
@@ -245,6 +247,30 @@ def test_one_instance_at_a_time(
     fakes.hold.set()
     wait_for(lambda: any(m.startswith("job 'r' ran for") for m in caplog.messages))
     assert len(fakes.reports) == 1
+
+
+def test_a_leased_scheduler_starts_no_job_while_its_process_does_not_hold_the_lease(
+    make_settings: Any, engine: Engine, registry: PluginRegistry, fakes: Any
+) -> None:
+    holds = threading.Event()  # what the service's Leadership.holds says
+    settings = make_settings({"scheduler": {"jobs": [report(interval_minutes=60)]}})
+    config = scheduler_config(settings)
+    context = JobContext(settings, registry, engine, config.timezone)
+    leased = partial(LeasedScheduler, holds.is_set, 0.05)
+    scheduler, store = make_scheduler(engine, config, context, leased)
+    sync_jobs(scheduler, store, config)
+    scheduler.start()
+    try:
+        due = datetime.now(UTC)
+        scheduler.modify_job("r", next_run_time=due)
+        scheduler.wakeup()
+        time.sleep(0.5)
+        assert fakes.reports == []
+        assert scheduler.get_job("r").next_run_time == due  # still due, for the holder
+        holds.set()
+        wait_for(lambda: fakes.reports)
+    finally:
+        scheduler.shutdown()
 
 
 @pytest.fixture
