@@ -424,7 +424,7 @@ def _lead(
         if stop.wait(leadership.next_beat_s()):
             return
         if not leadership.renew():
-            if started:
+            if scheduler.running:
                 scheduler.pause()
             return
 
