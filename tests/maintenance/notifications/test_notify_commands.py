@@ -91,6 +91,7 @@ def test_errors_are_one_line(engine: Engine, tmp_path: Path, database_url: str) 
 
     channel = {"notifier": "webhook", "settings": {"url": "http://127.0.0.1:9/x"}}
     good = write_config(tmp_path / "good.toml", {"notifications": {"channels": [channel]}})
+    (tmp_path / "other.sqlite").touch()
     unmigrated = f"sqlite:///{tmp_path / 'other.sqlite'}"
     result = catenary(good, unmigrated, "notify", "status")
     assert result.exit_code == 1
