@@ -115,6 +115,9 @@ def process(
     for text in [*result.summary_lines(), *run_alerts_lines(alerts)]:
         click.echo(printable(text))
     click.echo(f"stored as run {result.run_id}")
+    warning = result.warning(run_path)
+    if warning is not None:
+        click.echo(printable(warning), err=True)
 
 
 @click.command("export")
