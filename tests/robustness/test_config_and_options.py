@@ -181,6 +181,7 @@ def test_calibrate_refuses_a_roof_below_the_sensors(tmp_path: Path) -> None:
 # -- a run that did not move -------------------------------------------------------------------
 
 
+@pytest.mark.slow  # simulates, calibrates and processes
 def test_a_run_where_the_vehicle_did_not_move_is_refused_and_nothing_is_kept(
     tmp_path: Path, isolated_environment: Path, database: str
 ) -> None:
