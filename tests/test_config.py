@@ -47,7 +47,7 @@ def test_config_from_environment_variable_and_unknown_sections_kept(
     ("text", "message"),
     [
         ("[database\nurl = 1", "invalid TOML"),
-        ("[database]\nulr = 'x'\n", "unknown key database.ulr"),
+        ("[database]\nulr = 'x'\n", "unknown key database.ulr (did you mean url?)"),
         ("[database]\nurl = 3\n", "database.url must be a string"),
         ("[plugins]\ndisabled = 'x'\n", "plugins.disabled must be a list"),
         ("database = 1\n", "[database] must be a table"),

@@ -10,16 +10,20 @@ Precedence, highest first: command-line option, environment variable, config fil
 - data directory (SQLite file, per-run sample files, reports): ``$CATENARY_DATA_DIR``,
   ``[paths] data_dir``, else the per-user data directory.
 
-Sections the core does not know are kept in ``Settings.sections`` for plugins and later
-features; a known section with an unknown key is an error, so a misspelt key is never ignored.
+The sections above are resolved here; the other sections are kept in ``Settings.sections`` for
+the modules and plugins that read them: the core's (``CORE_SECTIONS``) and those plugins declare
+(hook ``catenary_config_sections``). A section nobody reads, or an unknown key, is an error
+naming it and the nearest known name (``PluginRegistry.check_settings``, when a command loads its
+settings), so a misspelt ``[databse]`` is never ignored.
 """
 
 from __future__ import annotations
 
+import difflib
 import math
 import os
 import tomllib
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,6 +40,23 @@ KNOWN_KEYS: dict[str, set[str]] = {
     "paths": {"data_dir"},
     "plugins": {"disabled"},
 }
+CORE_SECTIONS = frozenset(
+    {"limits", "maintenance", "notifications", "processors", "record", "scheduler"}
+)
+"""Sections other modules of the core read, each checking its keys as it reads them: [limits]
+(``catenary.limits``), [maintenance] (alert rules), [notifications], [scheduler], [record]
+(``catenary record``), [processors.NAME] (``catenary process``)."""
+
+
+def did_you_mean(name: str, known: Iterable[str], *, brackets: bool = False) -> str:
+    """`` (did you mean X?)`` for the known name nearest ``name`` (``difflib``), else
+    `` (known: A, B)``; ``brackets`` writes section names as ``[X]``."""
+    names = sorted(known)
+    shown = [f"[{n}]" if brackets else n for n in names]
+    near = difflib.get_close_matches(name, names, n=1)
+    if near:
+        return f" (did you mean {shown[names.index(near[0])]}?)"
+    return f" (known: {', '.join(shown) or 'none'})"
 
 
 @dataclass(frozen=True)
@@ -72,7 +93,7 @@ def read_config_file(path: Path) -> dict[str, Any]:
         unknown = sorted(set(value) - keys)
         if unknown:
             raise UserError(
-                f"{path}: unknown key {section}.{unknown[0]} (known: {', '.join(sorted(keys))})"
+                f"{path}: unknown key {section}.{unknown[0]}{did_you_mean(unknown[0], keys)}"
             )
     return data
 

@@ -74,7 +74,7 @@ def run_demo(context: CommandContext, out: Path, length_m: float, seed: int) -> 
     )
 
     click.echo("3/4 processing the run into the database")
-    with context.database(migrated=False) as engine:
+    with context.database(migrated=False, create=True) as engine:
         migrate.upgrade(engine)
     masts = run.with_suffix(".masts.csv")
     alerting = run_alerting(settings, registry, policy)

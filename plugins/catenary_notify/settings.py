@@ -1,4 +1,8 @@
-"""Reading a notifier's settings: known keys only, typed values, secrets from the environment."""
+"""Reading a notifier's settings: known keys only, typed values, secrets from the environment.
+
+A notifier's ``check`` reads what the config file holds (the core calls it when it reads the
+configuration); its ``send`` reads the same and then the environment variables they name.
+"""
 
 from __future__ import annotations
 
@@ -34,12 +38,18 @@ def seconds(notifier: str, settings: Mapping[str, Any], key: str, default: float
     return float(value)
 
 
-def from_environment(notifier: str, key: str, variable: Any) -> str:
-    """The value of the environment variable named by setting ``key``."""
+def variable_name(notifier: str, key: str, variable: Any) -> str:
+    """The name of an environment variable that setting ``key`` gives (not its value)."""
     if not isinstance(variable, str) or not variable:
         raise SettingsError(
             f"{notifier} settings: {key} must name an environment variable, not {variable!r}"
         )
+    return variable
+
+
+def from_environment(notifier: str, key: str, variable: Any) -> str:
+    """The value of the environment variable named by setting ``key``."""
+    variable = variable_name(notifier, key, variable)
     value = os.environ.get(variable)
     if value is None:
         raise SettingsError(

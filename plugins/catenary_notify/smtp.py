@@ -26,6 +26,7 @@ import logging
 import smtplib
 import ssl
 from collections.abc import Mapping
+from dataclasses import dataclass
 from email.message import EmailMessage
 from email.utils import formatdate, make_msgid
 from typing import Any
@@ -39,6 +40,7 @@ from catenary_notify.settings import (
     refuse_secret,
     seconds,
     text,
+    variable_name,
 )
 
 log = logging.getLogger(__name__)
@@ -79,8 +81,23 @@ def _recipients(settings: Mapping[str, Any]) -> list[str]:
     return to
 
 
-def send(alert: AlertRecord, settings: Mapping[str, Any]) -> None:
-    """Send ``alert`` as one message to the channel's recipients; raise on any failure."""
+@dataclass(frozen=True)
+class _Options:
+    """A channel's settings, checked (``options``)."""
+
+    host: str
+    port: int
+    security: str
+    sender: str
+    recipients: list[str]
+    timeout_s: float
+    username: str | None
+    ca_file: str | None
+
+
+def options(settings: Mapping[str, Any]) -> _Options:
+    """The settings as the config file holds them, checked; a ``SettingsError`` names the key.
+    The password is not read (``send`` reads its variable)."""
     refuse_secret(NAME, settings, "password")
     check_keys(NAME, settings, KEYS)
     host = text(NAME, settings, "host")
@@ -100,6 +117,8 @@ def send(alert: AlertRecord, settings: Mapping[str, Any]) -> None:
         raise SettingsError(f"{NAME} settings: username must be a string, not {username!r}")
     if username is None and "password_env" in settings:
         raise SettingsError(f"{NAME} settings: password_env is given without a username")
+    if username is not None:
+        variable_name(NAME, "password_env", settings.get("password_env"))
     allow_plain_auth = settings.get("allow_plain_auth", False)
     if not isinstance(allow_plain_auth, bool):
         raise SettingsError(
@@ -110,20 +129,33 @@ def send(alert: AlertRecord, settings: Mapping[str, Any]) -> None:
             f'{NAME} settings: security = "none" with a username would send the password in '
             'clear: use "starttls" or "ssl", or set allow_plain_auth = true'
         )
-    password = None
-    if username is not None:
-        password = from_environment(NAME, "password_env", settings.get("password_env"))
     ca_file = settings.get("ca_file")
     if ca_file is not None and not isinstance(ca_file, str):
         raise SettingsError(f"{NAME} settings: ca_file must be a path, not {ca_file!r}")
+    return _Options(host, port, security, sender, recipients, timeout_s, username, ca_file)
+
+
+def check(settings: Mapping[str, Any]) -> None:
+    """Refuse settings ``send`` would refuse whatever the environment (``Notifier.check``)."""
+    options(settings)
+
+
+def send(alert: AlertRecord, settings: Mapping[str, Any]) -> None:
+    """Send ``alert`` as one message to the channel's recipients; raise on any failure."""
+    checked = options(settings)
+    host, port, security = checked.host, checked.port, checked.security
+    sender, recipients, username = checked.sender, checked.recipients, checked.username
+    password = None
+    if username is not None:
+        password = from_environment(NAME, "password_env", settings.get("password_env"))
 
     mail = compose(alert, sender, recipients)
-    context = ssl.create_default_context(cafile=ca_file)
+    context = ssl.create_default_context(cafile=checked.ca_file)
     client: smtplib.SMTP
     if security == "ssl":
-        client = smtplib.SMTP_SSL(host, port, timeout=timeout_s, context=context)
+        client = smtplib.SMTP_SSL(host, port, timeout=checked.timeout_s, context=context)
     else:
-        client = smtplib.SMTP(host, port, timeout=timeout_s)
+        client = smtplib.SMTP(host, port, timeout=checked.timeout_s)
     with client:
         if security == "starttls":
             client.starttls(context=context)

@@ -30,6 +30,7 @@ from catenary_notify.settings import (
     from_environment,
     seconds,
     text,
+    variable_name,
 )
 
 NAME = "webhook"
@@ -47,17 +48,23 @@ class _NoRedirect(urllib.request.HTTPRedirectHandler):
 _OPENER = urllib.request.build_opener(_NoRedirect)
 
 
-def _url(settings: Mapping[str, Any]) -> str:
-    if ("url" in settings) == ("url_env" in settings):
-        raise SettingsError(f"{NAME} settings: give url or url_env (one of them)")
-    url = (
-        text(NAME, settings, "url")
-        if "url" in settings
-        else from_environment(NAME, "url_env", settings["url_env"])
-    )
-    if urlsplit(url).scheme not in ("http", "https") or not urlsplit(url).netloc:
-        raise SettingsError(f"{NAME} settings: url must be an http(s) URL, not {_where(url)!r}")
+def _http_url(url: str, key: str) -> str:
+    parts = urlsplit(url)
+    try:
+        port = parts.port
+    except ValueError:
+        port = -1
+    if port is not None and not 0 < port < 65536:
+        raise SettingsError(f"{NAME} settings: {key} has a port that is not 1-65535")
+    if parts.scheme not in ("http", "https") or not parts.netloc:
+        raise SettingsError(f"{NAME} settings: {key} must be an http(s) URL, not {_where(url)!r}")
     return url
+
+
+def _url(settings: Mapping[str, Any]) -> str:
+    if "url" in settings:
+        return _http_url(text(NAME, settings, "url"), "url")
+    return _http_url(from_environment(NAME, "url_env", settings["url_env"]), "url (url_env)")
 
 
 def _where(url: str) -> str:
@@ -65,16 +72,32 @@ def _where(url: str) -> str:
     return f"{parts.scheme}://{parts.hostname or ''}{f':{parts.port}' if parts.port else ''}"
 
 
-def _headers(settings: Mapping[str, Any]) -> dict[str, str]:
-    headers = {"Content-Type": "application/json; charset=utf-8", "User-Agent": "catenary"}
+def check(settings: Mapping[str, Any]) -> None:
+    """Refuse settings ``send`` would refuse whatever the environment (``Notifier.check``): the
+    keys, the URL (or the name of its variable), the headers and the timeout."""
+    check_keys(NAME, settings, KEYS)
+    if ("url" in settings) == ("url_env" in settings):
+        raise SettingsError(f"{NAME} settings: give url or url_env (one of them)")
+    if "url" in settings:
+        _http_url(text(NAME, settings, "url"), "url")
+    else:
+        variable_name(NAME, "url_env", settings["url_env"])
     for key in ("headers", "headers_env"):
         table = settings.get(key, {})
         if not isinstance(table, dict) or not all(
             isinstance(k, str) and isinstance(v, str) for k, v in table.items()
         ):
             raise SettingsError(f"{NAME} settings: {key} must be a table of strings")
-        for header, value in table.items():
-            headers[header] = value if key == "headers" else from_environment(NAME, key, value)
+    for variable in settings.get("headers_env", {}).values():
+        variable_name(NAME, "headers_env", variable)
+    seconds(NAME, settings, "timeout", DEFAULT_TIMEOUT_S)
+
+
+def _headers(settings: Mapping[str, Any]) -> dict[str, str]:
+    headers = {"Content-Type": "application/json; charset=utf-8", "User-Agent": "catenary"}
+    headers.update(settings.get("headers", {}))
+    for header, variable in settings.get("headers_env", {}).items():
+        headers[header] = from_environment(NAME, "headers_env", variable)
     return headers
 
 
@@ -86,7 +109,7 @@ def payload(alert: AlertRecord) -> bytes:
 
 def send(alert: AlertRecord, settings: Mapping[str, Any]) -> None:
     """POST ``alert``; raise unless the server answers 2xx within the timeout."""
-    check_keys(NAME, settings, KEYS)
+    check(settings)
     url = _url(settings)
     headers = _headers(settings)
     timeout_s = seconds(NAME, settings, "timeout", DEFAULT_TIMEOUT_S)

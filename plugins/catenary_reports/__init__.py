@@ -39,7 +39,7 @@ def catenary_reporters() -> list[Reporter]:
             description=(
                 "one run (RUN): header, thickness/height/stagger along the chainage, limit "
                 "exceedances, spans; .html, or .csv/.parquet (the span table with its limit); "
-                "option (--set KEY=VALUE) segment_m 1000 (chainage per figure)"
+                "option (--set KEY=VALUE) segment_m 1000 (chainage per figure, 50 to 1000000)"
             ),
             write=_lazy("run_report"),
         ),
@@ -65,7 +65,8 @@ def catenary_reporters() -> list[Reporter]:
             description=(
                 "two runs over the same section (RUN_A RUN_B): thickness curves and the "
                 "histogram of differences; .html, or .csv/.parquet (the histogram); "
-                "options (--set KEY=VALUE) tolerance_mm 0.1, bin_mm 0.02, max_shift_m 1.0"
+                "options (--set KEY=VALUE) tolerance_mm 0.1 (0.001 to 5), "
+                "bin_mm 0.02 (0.001 to 1), max_shift_m 1.0 (0 to 10)"
             ),
             write=_lazy("repeatability"),
         ),

@@ -36,9 +36,19 @@ from catenary_reports.plots import (
     profile_figure,
     svg,
 )
-from catenary_reports.request import check_output, parse_request
+from catenary_reports.request import Option, check_output, parse_request
 
 __all__ = ["HISTOGRAM_SCHEMA", "write"]
+
+OPTIONS = {
+    "tolerance_mm": Option(0.1, 0.001, 5.0, "mm"),
+    "bin_mm": Option(0.02, 0.001, 1.0, "mm"),
+    "max_shift_m": Option(1.0, 0.0, 10.0, "m"),
+}
+"""``--set``: the tolerance and the histogram's bins within what a residual thickness can
+differ by (a bin of less than a micrometre would only multiply the histogram's rows), and the
+chainage shift searched within what an encoder's error amounts to (the search's work grows
+with it)."""
 
 HISTOGRAM_SCHEMA = pa.schema(
     [
@@ -134,7 +144,7 @@ def write(raw: ReportRequest, output: Path) -> Path:
         "repeatability",
         raw,
         runs=(2, 2),
-        options={"tolerance_mm": 0.1, "bin_mm": 0.02, "max_shift_m": 1.0},
+        options=OPTIONS,
     )
     suffix = check_output(output, (".html", ".csv", ".parquet"))
     settings, options = request.settings, request.options

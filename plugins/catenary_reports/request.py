@@ -13,7 +13,18 @@ from catenary.errors import UserError
 from catenary.limits import LimitPolicy
 from catenary.plugins import PluginRegistry, ReportRequest
 
-__all__ = ["Request", "check_output", "parse_request"]
+__all__ = ["Option", "Request", "check_output", "parse_request"]
+
+
+@dataclass(frozen=True)
+class Option:
+    """A numeric ``--set KEY=VALUE`` option: its default and the values it may take, from
+    ``low`` to ``high`` inclusive (bounds that keep the work a report does in proportion)."""
+
+    default: float
+    low: float
+    high: float
+    unit: str
 
 
 @dataclass(frozen=True)
@@ -35,11 +46,11 @@ def parse_request(
     *,
     runs: tuple[int, int] = (0, 0),
     line: bool = False,
-    options: Mapping[str, float] | None = None,
+    options: Mapping[str, Option] | None = None,
 ) -> Request:
     """Check ``raw`` for reporter ``reporter``: between ``runs[0]`` and ``runs[1]`` runs, a
-    line (and track) only if ``line``, and only the positive numeric ``options`` named, whose
-    values here are the defaults."""
+    line (and track) only if ``line``, and only the numeric ``options`` named, each within its
+    bounds (a ``UserError`` naming the option, the value and the range)."""
     where = f"reporter {reporter!r}"
     given = tuple(str(r) for r in raw.runs)
     fewest, most = runs
@@ -54,18 +65,22 @@ def parse_request(
     line_code, track_code = raw.line, raw.track
     if not line and (line_code is not None or track_code is not None):
         raise UserError(f"{where} takes no --line or --track")
-    defaults = dict(options or {})
-    values = dict(defaults)
+    known = dict(options or {})
+    values = {key: option.default for key, option in known.items()}
     for key, text in raw.options.items():
-        if key not in defaults:
-            known = ", ".join(sorted(defaults)) or "none"
-            raise UserError(f"{where}: unknown option {key!r} (known: {known})")
+        option = known.get(key)
+        if option is None:
+            names = ", ".join(sorted(known)) or "none"
+            raise UserError(f"{where}: unknown option {key!r} (known: {names})")
         try:
             value = float(text)
         except (TypeError, ValueError):
             value = math.nan
-        if not (math.isfinite(value) and value > 0.0):
-            raise UserError(f"{where}: option {key} = {text!r} is not a positive number")
+        if not option.low <= value <= option.high:  # NaN too
+            raise UserError(
+                f"{where}: option {key} = {text!r} is outside {option.low:.15g} to "
+                f"{option.high:.15g} {option.unit}"
+            )
         values[key] = value
     return Request(
         settings=raw.settings,

@@ -46,7 +46,7 @@ from catenary_reports.plots import (
     svg,
     wire_colour,
 )
-from catenary_reports.request import check_output, parse_request
+from catenary_reports.request import Option, check_output, parse_request
 
 __all__ = ["exceeded", "write"]
 
@@ -387,6 +387,10 @@ def _span_section(spans: Sequence[SpanMeasurement], limits: _Limits) -> str:
     )
 
 
+OPTIONS = {"segment_m": Option(1000.0, 50.0, 1_000_000.0, "m")}
+"""``--set``: the chainage of one figure, at least about a span (a figure of less would
+multiply the figures, and the time, without showing more)."""
+
 _TABLE_SCHEMA = pa.schema(
     [
         *SPAN_SCHEMA,
@@ -411,7 +415,7 @@ def _table(spans: Sequence[SpanMeasurement], limits: _Limits) -> pa.Table:
 
 def write(raw: ReportRequest, output: Path) -> Path:
     """Write the run report of ``raw['runs'][0]`` to ``output`` (module docstring)."""
-    request = parse_request("run", raw, runs=(1, 1), options={"segment_m": 1000.0})
+    request = parse_request("run", raw, runs=(1, 1), options=OPTIONS)
     suffix = check_output(output, (".html", ".csv", ".parquet"))
     settings = request.settings
     with (

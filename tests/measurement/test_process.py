@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import csv
 import os
+import shutil
 import socket
 import subprocess
 import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import h5py
@@ -28,6 +30,7 @@ from sqlalchemy import create_engine, func, select
 from sqlalchemy.orm import Session
 
 from catenary.cli import cli
+from catenary.domain import WireObservations
 from catenary.measurement.process import LEGACY_SCRATCH_AGE_S, remove_abandoned_scratch
 from catenary.measurement.samples import EXPORT_COLUMNS
 from catenary.measurement.spans import SPAN_COLUMNS
@@ -464,3 +467,69 @@ def test_ctrl_c_after_the_commit_says_the_run_is_stored_and_what_is_left(
         f"interrupted: stored as run {run_id}, its alerts not evaluated "
         f"(catenary alerts evaluate --run {run_id})"
     )
+
+
+def stationary(simulated: Simulated, folder: Path) -> Simulated:
+    """The run as a vehicle that did not move records it: the encoder stays at 0."""
+    run = folder / "stationary.h5"
+    shutil.copyfile(simulated.run, run)
+    with h5py.File(run, "r+") as f:
+        f["/scans/position_m"][:] = 0.0
+    return Simulated(run, simulated.truth, simulated.masts, simulated.rig)
+
+
+def test_a_run_that_measured_no_wire_is_refused_and_nothing_stored(
+    simulated: Simulated, database: str, isolated_environment: Path, tmp_path: Path
+) -> None:
+    """The stereo processor follows wires along the track: a vehicle that did not move gives
+    it nothing to follow, and a run without one measured wire is not worth a row."""
+    still = stationary(simulated, tmp_path)
+    assert one_line_error(process(still, database, "--wire-type", "CTA120")) == (
+        f"Error: run {still.run} covers 0.0 m: the vehicle did not move; no wire was measured "
+        "in it: nothing stored"
+    )
+    assert stored(database) == (0, 0)
+    assert not any((isolated_environment / "samples").iterdir())
+
+
+class _Steady:
+    """A processor that sees one wire in every scan, right above the roof's centre."""
+
+    @hookimpl
+    def catenary_processors(self) -> list[Processor]:
+        class Steady:
+            def process(self, block: Any) -> WireObservations:
+                n = block.scans
+                return WireObservations(
+                    scan=block.first_scan + np.arange(n), wire=np.zeros(n, dtype=np.int64),
+                    x_roof_mm=np.zeros(n), z_roof_mm=np.full(n, 1500.0),
+                    wear_width_mm=np.full(n, 5.0), cameras=np.full(n, 3, dtype=np.int64),
+                    reprojection_rms_px=np.full(n, 0.1),
+                )  # fmt: skip
+
+            def finish(self) -> WireObservations:
+                return self.process(SimpleNamespace(scans=0, first_scan=0))
+
+        return [Processor("steady", "one wire above the roof", lambda rig, settings: Steady())]
+
+
+def test_a_stationary_run_that_measured_a_wire_is_stored_with_a_warning(
+    simulated: Simulated, database: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Its samples are real (the wire at one chainage), but no span: say so on stderr."""
+
+    def registry(**kwargs: Any) -> PluginRegistry:
+        return PluginRegistry(plugins=[("acme", _Steady())], **kwargs)
+
+    monkeypatch.setattr("catenary.plugins.manager.PluginRegistry", registry)
+    still = stationary(simulated, tmp_path)
+    result = invoke(
+        "process", still.run, "--rig", still.rig, "--wire-type", "CTA120", "--db", database,
+        "--processor", "steady",
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "spans      0" in result.stdout
+    assert result.stderr == (
+        f"warning: run {still.run} covers 0.0 m: the vehicle did not move; no span measured\n"
+    )
+    assert stored(database) == (1, 0)

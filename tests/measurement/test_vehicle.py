@@ -198,6 +198,12 @@ def test_name_defaults_to_the_file_stem(tmp_path: Path) -> None:
         ("sensor_baseline_mm = 1800.0", "sensor_baseline_mm = nan", ["sensor_baseline_mm", "nan"]),
         ("sensor_baseline_mm = 1800.0", "sensor_baseline_mm = inf", ["sensor_baseline_mm", "inf"]),
         ('name = "demo-rig"', "name = 4", ["name", "4"]),
+        (  # the roof below the sensors
+            "roof_height_mm = 3900.0",
+            "roof_height_mm = 900",
+            ["key roof_height_mm = 900 is not above sensor_height_mm = 1100"],
+        ),
+        ("roof_height_mm = 3900.0", "roof_height_mm = 1100.0", ["roof_height_mm = 1100.0 is not"]),
         ("sensor_baseline_mm = 1800.0", "sensor_baseline_mm = ", ["not valid TOML"]),
     ],
 )
@@ -222,3 +228,8 @@ def test_missing_vehicle_toml_is_a_user_error(tmp_path: Path) -> None:
 def test_parse_vehicle_geometry_names_nested_keys() -> None:
     with pytest.raises(FormatError, match=r"rig\.toml: missing key vehicle\.roof_height_mm"):
         parse_vehicle_geometry({"sensor_height_mm": 1.0}, "rig.toml", prefix="vehicle.")
+    below = {"roof_height_mm": 1000.0, "sensor_height_mm": 1100.0, "sensor_baseline_mm": 1800.0}
+    with pytest.raises(
+        FormatError, match=r"rig\.toml: key vehicle\.roof_height_mm = 1000\.0 is not"
+    ):
+        parse_vehicle_geometry(below, "rig.toml", prefix="vehicle.")

@@ -39,6 +39,12 @@ def shown(url: str) -> str:
     return make_url(url).render_as_string(hide_password=True)
 
 
+def empty_sqlite_file(url: str) -> None:
+    file = Path(str(make_url(url).database))
+    file.parent.mkdir(parents=True, exist_ok=True)
+    file.touch()
+
+
 def assert_one_line_error(result: Result) -> None:
     assert result.exit_code == 1, result.output
     assert isinstance(result.exception, SystemExit)  # not an uncaught exception
@@ -56,6 +62,12 @@ def test_upgrade_current_check_downgrade(catenary: Catenary, database_url: str, 
         if place == "global":
             return catenary("--db", database_url, *args)
         return catenary(*args, "--db", database_url)
+
+    if database_url.startswith("sqlite"):  # a file that does not exist is not created
+        result = run("db", "current")
+        assert_one_line_error(result)
+        assert f"{where} does not exist: run 'catenary db upgrade'" in result.output
+        empty_sqlite_file(database_url)  # a database not migrated
 
     result = run("db", "current")
     assert result.exit_code == 0, result.output
@@ -83,6 +95,8 @@ def test_upgrade_current_check_downgrade(catenary: Catenary, database_url: str, 
 
 
 def test_check_on_a_database_that_is_not_migrated(catenary: Catenary, database_url: str) -> None:
+    if database_url.startswith("sqlite"):
+        empty_sqlite_file(database_url)
     result = catenary("--db", database_url, "db", "check")
     assert_one_line_error(result)
     assert result.output == (

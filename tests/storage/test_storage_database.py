@@ -152,7 +152,20 @@ def test_sqlite_ddl_is_transactional(tmp_path: Path) -> None:
 def test_open_database_checks_the_migration(database_url: str) -> None:
     with pytest.raises(DatabaseNotMigrated), open_database(database_url):
         pass
-    with open_database(database_url, migrated=False) as engine:
+    with open_database(database_url, migrated=False, create=True) as engine:
         migrate.upgrade(engine)
     with open_database(database_url) as engine:
         assert migrate.current_revision(engine) == migrate.head_revision()
+
+
+def test_a_sqlite_file_that_does_not_exist_is_refused_not_created(tmp_path: Path) -> None:
+    file = tmp_path / "none.sqlite"
+    for migrated in (True, False):
+        with (
+            pytest.raises(
+                DatabaseNotMigrated, match=r"none\.sqlite does not exist: run 'catenary db upgrade'"
+            ),
+            open_database(f"sqlite:///{file}", migrated=migrated),
+        ):
+            pass
+    assert not file.exists()

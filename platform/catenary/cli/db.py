@@ -16,11 +16,12 @@ if TYPE_CHECKING:
 
 
 @contextmanager
-def _engine(ctx: click.Context) -> Iterator[Engine]:
-    """The engine of the invocation's database (``--db``), disposed of on exit."""
+def _engine(ctx: click.Context, *, create: bool = False) -> Iterator[Engine]:
+    """The engine of the invocation's database (``--db``), disposed of on exit; a SQLite file
+    that does not exist is refused unless ``create``."""
     from catenary.storage.database import open_database
 
-    with open_database(app_of(ctx).settings, migrated=False) as engine:
+    with open_database(app_of(ctx).settings, migrated=False, create=create) as engine:
         yield engine
 
 
@@ -47,7 +48,7 @@ def _migrate(ctx: click.Context, move: Callable[[Engine, str], str | None], revi
     from catenary.storage import migrate
     from catenary.storage.database import mask_url
 
-    with _engine(ctx) as engine:
+    with _engine(ctx, create=move is migrate.upgrade) as engine:
         before = migrate.current_revision(engine)
         after = move(engine, revision)
         where = mask_url(engine.url)

@@ -59,6 +59,7 @@ def process(
 ) -> None:
     """Process a recorded run into per-span wear in the database."""
     from catenary.maintenance.alerts import evaluate_stored_run, run_alerting, run_alerts_lines
+    from catenary.maintenance.notifications import notification_config
     from catenary.measurement.process import ProcessRequest, process_run
     from catenary.storage.database import open_database
 
@@ -75,6 +76,8 @@ def process(
         replace=replace,
     )
     alerting = run_alerting(settings, app.registry)
+    if alerting.policy is not None:  # its alerts queue notifications: a wrong channel, now
+        notification_config(settings, app.registry)
     with ExitStack() as stack:
         bar: list[Any] = []
 
@@ -112,6 +115,9 @@ def process(
     for text in [*result.summary_lines(), *run_alerts_lines(alerts)]:
         click.echo(printable(text))
     click.echo(f"stored as run {result.run_id}")
+    warning = result.warning(run_path)
+    if warning is not None:
+        click.echo(printable(warning), err=True)
 
 
 @click.command("export")

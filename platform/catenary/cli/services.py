@@ -1,5 +1,5 @@
-"""The maintenance service's commands: ``catenary notify deliver|status`` and ``catenary
-scheduler``."""
+"""The maintenance service's commands: ``catenary notify deliver|status|requeue`` and
+``catenary scheduler``."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import click
 
 from catenary.cli.app import app_of
 from catenary.plugins import database_option
-from catenary.text import printable
+from catenary.text import identifier_option, printable
 
 if TYPE_CHECKING:
     from catenary.maintenance.notifications import (
@@ -27,7 +27,8 @@ def _when(moment: datetime | None) -> str:
 
 @click.group("notify")
 def notify() -> None:
-    """Alert notifications: deliver those due, list those not sent ([notifications])."""
+    """Alert notifications: deliver those due, list those not sent, queue again those that gave
+    up ([notifications])."""
 
 
 def _describe(attempt: Attempt) -> str:
@@ -52,7 +53,7 @@ def deliver_command(ctx: click.Context) -> None:
 
     app = app_of(ctx)
     settings = app.settings
-    if not notification_config(settings).channels:
+    if not notification_config(settings, app.registry).channels:
         click.echo("no notification channels configured ([[notifications.channels]])")
         return
     with open_database(settings) as engine:
@@ -110,6 +111,32 @@ def status_command(ctx: click.Context) -> None:
     click.echo(f"{len(rows) - failed} pending, {failed} failed")
 
 
+@notify.command("requeue")
+@click.option("--channel", metavar="NAME", callback=identifier_option, help="Only this channel's.")
+@click.option(
+    "--alert", "alert_id", type=click.IntRange(min=1), metavar="ID", help="Only this alert's."
+)
+@database_option
+@click.pass_context
+def requeue_command(ctx: click.Context, channel: str | None, alert_id: int | None) -> None:
+    """Queue again the notifications that gave up (failed max_attempts times), from their first
+    attempt: the next delivery pass sends them. Fix the channel's settings first."""
+    from catenary.config import did_you_mean
+    from catenary.errors import UserError
+    from catenary.maintenance.notifications import notification_config, requeue_failed
+    from catenary.storage.database import open_database, session_scope
+
+    app = app_of(ctx)
+    settings = app.settings
+    names = {c.name for c in notification_config(settings, app.registry).channels}
+    if channel is not None and channel not in names:
+        hint = did_you_mean(channel, names)
+        raise UserError(f"--channel {channel}: no such notification channel{hint}")
+    with open_database(settings) as engine, session_scope(engine) as session:
+        count = requeue_failed(session, channel=channel, alert_id=alert_id)
+    click.echo(f"{count} failed notification(s) queued again")
+
+
 LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 
 
@@ -118,9 +145,11 @@ LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 @click.pass_context
 def scheduler(ctx: click.Context) -> None:
     """Run the scheduled jobs of [scheduler] as a service, until SIGTERM or Ctrl-C."""
+    from catenary.maintenance.notifications import notification_config
     from catenary.maintenance.scheduler import serve  # APScheduler is loaded by the service only
 
     app = app_of(ctx)
+    notification_config(app.settings, app.registry)  # a wrong channel: refused at start
     logging.basicConfig(level=logging.INFO, format=LOG_FORMAT, stream=sys.stderr)
     # the service logs runs, errors and missed runs itself
     # (catenary.maintenance.scheduler.log_job_event)

@@ -19,7 +19,8 @@ A delivery is an ``AlertNotification`` row (its ``notifier`` column holds the ch
 ``queue_notifications`` adds one, pending, for every open alert and channel that wants its level,
 at most one per alert and channel; ``deliver_pending`` sends those that are due, outside any
 transaction, and records every attempt. A row is never deleted: after ``max_attempts`` failures it
-stays failed with its last error (raising ``max_attempts`` makes it due again).
+stays failed with its last error (raising ``max_attempts`` makes it due again, and
+``requeue_failed``, ``catenary notify requeue``, queues it again from its first attempt).
 """
 
 from __future__ import annotations
@@ -126,9 +127,15 @@ def _channel(where: str, number: int, item: Any) -> Channel:
     return Channel(name, notifier, frozenset(levels), settings, float(timeout_s))
 
 
-def notification_config(settings: Settings) -> NotificationConfig:
+def notification_config(
+    settings: Settings, registry: PluginRegistry | None = None
+) -> NotificationConfig:
     """The ``[notifications]`` section of ``settings``; a malformed one is a one-line
-    ``UserError`` naming the config file and the key."""
+    ``UserError`` naming the config file and the key. With ``registry``, each channel's
+    settings are checked by its notifier too (``Notifier.check``; a channel whose notifier is
+    not installed waits, as in ``deliver_pending``): call it so when a command or service that
+    may queue or send notifications starts, so that a wrong setting is refused then, not at
+    every send."""
     where = str(settings.config_path or "config")
     section = settings.sections.get("notifications", {})
     if not isinstance(section, dict):
@@ -148,7 +155,22 @@ def notification_config(settings: Settings) -> NotificationConfig:
             raise UserError(
                 f"{where}: two notification channels are named {name!r}: give each a name"
             )
+    if registry is not None:
+        for channel in channels:
+            _check_channel(where, channel, registry)
     return NotificationConfig(channels, int(max_attempts), float(retry))
+
+
+def _check_channel(where: str, channel: Channel, registry: PluginRegistry) -> None:
+    notifier = registry.notifiers().get(channel.notifier)
+    if notifier is None or notifier.check is None:
+        return
+    with registry.boundary("notifier", channel.notifier):
+        try:
+            notifier.check(channel.settings)
+        except ValueError as exc:
+            message = " ".join(str(exc).split())
+            raise UserError(f"{where}: notification channel {channel.name!r}: {message}") from None
 
 
 _INSERTS: dict[str, Callable[..., Any]] = {
@@ -324,7 +346,7 @@ def deliver_pending(
     died mid-send is due again once its claim has expired (delivered at least once).
     ``session_factory()`` opens a unit of work (``lambda: session_scope(engine)``).
     """
-    config = notification_config(settings)
+    config = notification_config(settings, registry)
     notifiers = registry.notifiers()
     known = ", ".join(sorted(notifiers)) or "none"
     usable: dict[str, tuple[Channel, Notifier]] = {}
@@ -350,6 +372,23 @@ def deliver_pending(
         if attempt is not None:
             report.attempts.append(attempt)
     return report
+
+
+def requeue_failed(
+    session: Session, *, channel: str | None = None, alert_id: int | None = None
+) -> int:
+    """Queue again the deliveries that gave up (failed, no attempt due: ``max_attempts`` used),
+    of ``channel`` and ``alert_id`` if given: pending, no attempt, no error, due at once.
+    Returns how many. A failed delivery still retried (or being sent) is left alone."""
+    statement = update(AlertNotification).where(
+        AlertNotification.status == "failed", AlertNotification.next_attempt_at.is_(None)
+    )
+    if channel is not None:
+        statement = statement.where(AlertNotification.notifier == channel)
+    if alert_id is not None:
+        statement = statement.where(AlertNotification.alert_id == alert_id)
+    values = {"status": "pending", "attempts": 0, "last_error": None, "updated_at": utc_now()}
+    return int(session.connection().execute(statement.values(**values)).rowcount)
 
 
 def undelivered(session: Session) -> list[AlertNotification]:

@@ -16,7 +16,9 @@
 4. **Finish** (pass 2): each sample's chainage, span (the register's masts, or the turning
    points without one), wire type and residual thickness, written to the run's samples file
    (:mod:`catenary.measurement.samples`), and the span statistics
-   (:mod:`catenary.measurement.spans`).
+   (:mod:`catenary.measurement.spans`). A run in which no wire was measured at all (a
+   vehicle that did not move, cameras that saw nothing) is refused: nothing is stored. One
+   that measured no span (too little track covered) is stored and the command warns.
 5. **Store** in one transaction: the line, track and masts, the vehicle and rig calibration
    (versioned), the run and its span measurements. The samples file is named after the run
    and moved into place inside that transaction; a failure anywhere leaves neither a row
@@ -112,6 +114,15 @@ class ProcessRequest:
     replace: bool = False
 
 
+STILL_M = 0.05
+"""A run whose encoder advanced less than this did not move (its length prints as 0.0 m)."""
+
+
+def _covered(length_m: float) -> str:
+    still = ": the vehicle did not move" if length_m < STILL_M else ""
+    return f"{length_m:.1f} m{still}"
+
+
 @dataclass(frozen=True)
 class ProcessResult:
     """What was stored (or found already stored: ``already_stored``)."""
@@ -132,6 +143,13 @@ class ProcessResult:
     faulty: int = 0
     minimum: SpanMeasurement | None = None
     samples_path: Path | None = None
+
+    def warning(self, run_path: Path) -> str | None:
+        """The line to warn with when the run measured no span (it covered too little track,
+        or none: the vehicle did not move), else None."""
+        if self.spans:
+            return None
+        return f"warning: run {run_path} covers {_covered(self.length_m)}; no span measured"
 
     def summary_lines(self) -> list[str]:
         """The short summary of a stored run (the command adds its alerts and its id)."""
@@ -516,6 +534,11 @@ def process_run(
                 )
                 samples = writer.rows
             measured.unlink()
+            if samples == 0:  # nothing at all to keep
+                raise UserError(
+                    f"run {request.run_path} covers {_covered(float(abs(ends[1] - ends[0])))}; "
+                    "no wire was measured in it: nothing stored"
+                )
             span_rows = _span_rows(spans.results(), layout, request.wire_type)
             header = inputs.header
             try:

@@ -166,7 +166,9 @@ def parse_vehicle_geometry(
     ``prefix`` is prepended to key names in error messages (e.g. ``"vehicle."`` when the
     table is nested in a rig calibration); ``name`` defaults to ``default_name`` when absent.
     Raises :class:`FormatError` naming ``path`` and the key for a missing, non-numeric,
-    non-finite or non-positive length, or a non-string name.
+    non-finite or non-positive length, a roof not above the sensors (the roof origin O lies
+    ``roof_height_mm - sensor_height_mm`` above the sensors' reference point B), or a
+    non-string name.
     """
     name = table.get("name", default_name)
     if not isinstance(name, str):
@@ -183,6 +185,14 @@ def parse_vehicle_geometry(
         if not math.isfinite(number) or number <= 0.0:
             raise FormatError(path, f"key {prefix}{key} must be positive, got {value!r}")
         values[key] = number
+    roof, sensor = values["roof_height_mm"], values["sensor_height_mm"]
+    if roof <= sensor:
+        raise FormatError(
+            path,
+            f"key {prefix}roof_height_mm = {table['roof_height_mm']!r} is not above "
+            f"{prefix}sensor_height_mm = {table['sensor_height_mm']!r}: the roof that carries "
+            "the cameras is above the car body's displacement sensors",
+        )
     return VehicleGeometry(
         name=name,
         roof_height_mm=values["roof_height_mm"],
@@ -195,9 +205,10 @@ def load_vehicle_geometry(path: str | Path) -> VehicleGeometry:
     """Read a vehicle geometry TOML file (FORMATS.md "Vehicle geometry: TOML").
 
     Keys ``roof_height_mm``, ``sensor_height_mm`` and ``sensor_baseline_mm`` are required,
-    numeric and positive; ``name`` is optional (default: the file's stem). Extra keys are
-    ignored. Raises :class:`UserError` if the file cannot be read and :class:`FormatError`
-    (naming the file and the key) if it is not valid TOML or a key is wrong.
+    numeric and positive, the roof above the sensors; ``name`` is optional (default: the file's
+    stem). Extra keys are ignored. Raises :class:`UserError` if the file cannot be read and
+    :class:`FormatError` (naming the file and the key) if it is not valid TOML or a key is
+    wrong.
     """
     file = Path(path)
     try:

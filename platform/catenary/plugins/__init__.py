@@ -3,7 +3,8 @@
 - ``hookimpl``: the marker for a plugin's hook implementations (the hooks, each with an
   example: ``catenary.plugins.hookspecs``);
 - the registrations a contribution hook returns (``types``): ``WireType``, ``LimitPolicy``,
-  ``Source``, ``VehicleSource``, ``Processor``, ``Reporter``, ``Notifier``, ``Command``, and
+  ``Source``, ``VehicleSource``, ``Processor``, ``Reporter``, ``Notifier``, ``Command``,
+  ``ConfigSection``, and
   the protocols their callables return (``ScanStream``, ``VehicleStream``,
   ``BlockProcessor``);
 - the payloads the core hands over: ``ReportRequest`` (reporters), ``AlertRecord``
@@ -24,6 +25,7 @@ from catenary.plugins.types import (
     AlertRecord,
     BlockProcessor,
     Command,
+    ConfigSection,
     Notifier,
     Processor,
     Reporter,
@@ -40,6 +42,7 @@ __all__ = [
     "BlockProcessor",
     "Command",
     "CommandContext",
+    "ConfigSection",
     "LimitPolicy",
     "Notifier",
     "PluginError",

@@ -30,20 +30,34 @@ __all__ = ["CommandContext", "database_option", "pass_command_context"]
 
 class CommandContext:
     """One invocation's settings (``--config``, ``--db``), plugin registry and database, each
-    made on first use."""
+    made on first use.
+
+    ``settings`` are checked against the sections the core and the plugins read
+    (``PluginRegistry.check_settings``): a command that uses them refuses an unknown section or
+    key. ``registry`` alone (``catenary --help``, ``catenary plugins``) does not check them, so
+    a user can still list the plugins that would declare a section.
+    """
 
     def __init__(self, config_path: Path | None = None, database_url: str | None = None) -> None:
         self._config_path = config_path
         self._database_url = database_url
+        self._loaded: Settings | None = None
         self._settings: Settings | None = None
         self._registry: PluginRegistry | None = None
+
+    def _load(self) -> Settings:
+        if self._loaded is None:
+            self._loaded = load_settings(
+                config_path=self._config_path, database_url=self._database_url
+            )
+        return self._loaded
 
     @property
     def settings(self) -> Settings:
         if self._settings is None:
-            self._settings = load_settings(
-                config_path=self._config_path, database_url=self._database_url
-            )
+            loaded = self._load()
+            self.registry.check_settings(loaded)
+            self._settings = loaded
         return self._settings
 
     @property
@@ -51,21 +65,22 @@ class CommandContext:
         if self._registry is None:
             from catenary.plugins.manager import PluginRegistry
 
-            self._registry = PluginRegistry(disabled=self.settings.disabled_plugins)
+            self._registry = PluginRegistry(disabled=self._load().disabled_plugins)
         return self._registry
 
     def use_database(self, database_url: str) -> None:
         """Use ``database_url`` as the global ``--db`` does (a command's own ``--db URL``)."""
         self._database_url = database_url
-        self._settings = None
+        self._loaded = self._settings = None
 
     @contextmanager
-    def database(self, *, migrated: bool = True) -> Iterator[Engine]:
+    def database(self, *, migrated: bool = True, create: bool = False) -> Iterator[Engine]:
         """The invocation's database (an engine, disposed of on exit); ``migrated``: refuse, in
-        one line, a database whose schema is not at the head revision."""
+        one line, a database whose schema is not at the head revision; ``create``: make a
+        SQLite file that does not exist (else refused)."""
         from catenary.storage.database import open_database
 
-        with open_database(self.settings, migrated=migrated) as engine:
+        with open_database(self.settings, migrated=migrated, create=create) as engine:
             yield engine
 
 

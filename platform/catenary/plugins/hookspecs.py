@@ -26,6 +26,7 @@ from catenary.limits import LimitPolicy
 from catenary.plugins.types import (
     AlertRecord,
     Command,
+    ConfigSection,
     Notifier,
     Processor,
     Reporter,
@@ -157,6 +158,23 @@ def catenary_commands() -> Iterable[Command]:
         @hookimpl
         def catenary_commands():
             return [Command("hello", hello)]
+    """
+
+
+@hookspec
+def catenary_config_sections() -> Iterable[ConfigSection]:
+    """Config file sections this plugin reads (``settings.sections[name]``).
+
+    A section of the config file that neither the core nor a plugin declares is an error, as
+    is a key a section does not list; ``check`` refuses wrong values when settings are loaded.
+    Return ``ConfigSection`` objects, each with a name unique across the core and all plugins::
+
+        @hookimpl
+        def catenary_config_sections():
+            def check(table):
+                if not isinstance(table.get("exposure_us", 100), int):
+                    raise ValueError("exposure_us must be a whole number of microseconds")
+            return [ConfigSection("camera", frozenset({"exposure_us", "gain_db"}), check)]
     """
 
 

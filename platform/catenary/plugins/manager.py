@@ -21,12 +21,14 @@ from typing import Any, TypeVar
 import click
 import pluggy
 
+from catenary.config import CORE_SECTIONS, KNOWN_KEYS, Settings, did_you_mean
 from catenary.errors import UserError, one_line
 from catenary.limits import LimitPolicy
 from catenary.plugins import hookspecs
 from catenary.plugins.types import (
     AlertRecord,
     Command,
+    ConfigSection,
     Notifier,
     Processor,
     Reporter,
@@ -231,6 +233,45 @@ class PluginRegistry:
     def commands(self) -> dict[str, Command]:
         return self._collect("catenary_commands", "command", Command)
 
+    def config_sections(self) -> dict[str, ConfigSection]:
+        """The sections plugins declare; one the core reads itself is refused (an error)."""
+        found = self._collect("catenary_config_sections", "config section", ConfigSection)
+        for name in sorted(set(found) & (CORE_SECTIONS | set(KNOWN_KEYS))):
+            message = f"config section [{name}] is the core's"
+            self.errors.append(PluginError(self.owner("config section", name), "load", message))
+            del found[name]
+        return found
+
+    def check_settings(self, settings: Settings) -> None:
+        """Refuse, in one ``UserError`` naming the config file, a section of ``settings`` that
+        neither the core nor a plugin reads, a key its plugin does not list, or a value its
+        plugin's ``check`` refuses."""
+        declared = self.config_sections()
+        where = settings.config_path or "config"
+        known = CORE_SECTIONS | set(KNOWN_KEYS) | set(declared)
+        for name, table in settings.sections.items():
+            if name in CORE_SECTIONS:
+                continue
+            section = declared.get(name)
+            if section is None:
+                hint = did_you_mean(name, known, brackets=True)
+                what = f"section [{name}]" if isinstance(table, dict) else f"top-level key {name!r}"
+                raise UserError(f"{where}: unknown {what}{hint}")
+            if not isinstance(table, dict):
+                raise UserError(f"{where}: [{name}] must be a table")
+            if section.keys is not None:
+                unknown = sorted(set(table) - section.keys)
+                if unknown:
+                    hint = did_you_mean(unknown[0], section.keys)
+                    raise UserError(f"{where}: unknown key {name}.{unknown[0]}{hint}")
+            if section.check is not None:
+                with self.boundary("config section", name):
+                    try:
+                        section.check(table)
+                    except ValueError as exc:
+                        message = " ".join(str(exc).split())
+                        raise UserError(f"{where}: [{name}] {message}") from None
+
     def registrations(self) -> dict[str, dict[str, list[str]]]:
         """For each plugin, the names it registers per kind (for ``catenary plugins``)."""
         for collect in (
@@ -242,6 +283,7 @@ class PluginRegistry:
             self.reporters,
             self.notifiers,
             self.commands,
+            self.config_sections,
         ):
             collect()
         table: dict[str, dict[str, list[str]]] = {name: {} for name in self.plugin_names}

@@ -2,8 +2,8 @@
 
 A contribution hook returns registrations (small frozen dataclasses, each with a unique
 ``name`` per kind: ``Source``, ``VehicleSource``, ``Processor``, ``Reporter``, ``Notifier``,
-``Command``); the core checks their type, refuses a second registration of a name already
-taken, and calls the callables they carry inside its error boundary
+``Command``, ``ConfigSection``); the core checks their type, refuses a second registration of
+a name already taken, and calls the callables they carry inside its error boundary
 (``PluginRegistry.boundary``). The payloads are typed too: a reporter gets a
 ``ReportRequest``, a notifier and the ``catenary_alert_raised`` hook an ``AlertRecord``, and a
 processor returns ``WireObservations``.
@@ -33,6 +33,7 @@ __all__ = [
     "AlertRecord",
     "BlockProcessor",
     "Command",
+    "ConfigSection",
     "Notifier",
     "Processor",
     "ReportRequest",
@@ -218,11 +219,29 @@ class Reporter:
 
 @dataclass(frozen=True)
 class Notifier:
-    """An alert channel. ``send(alert, settings)`` delivers one alert or raises."""
+    """An alert channel. ``send(alert, settings)`` delivers one alert or raises;
+    ``check(settings)``, if given, raises ``ValueError`` naming the key for settings ``send``
+    would refuse, so the core refuses them when it reads the configuration, not at send time."""
 
     name: str
     description: str
     send: Callable[[AlertRecord, Mapping[str, Any]], None]
+    check: Callable[[Mapping[str, Any]], None] | None = None
+
+
+@dataclass(frozen=True)
+class ConfigSection:
+    """A config file section ``[name]`` a plugin reads (``Settings.sections[name]``).
+
+    ``keys``: the keys it may hold, or None for an open table (e.g. subsections named by the
+    user); another key is refused, naming the nearest known one. ``check(table)``, if given,
+    raises ``ValueError`` naming the key for a wrong value; the core reports it in one line as
+    ``FILE: [name] MESSAGE``. Both are applied when a command loads its settings.
+    """
+
+    name: str
+    keys: frozenset[str] | None = None
+    check: Callable[[Mapping[str, Any]], None] | None = None
 
 
 @dataclass(frozen=True)

@@ -183,9 +183,12 @@ def connected(engine: Engine, *, read_only: bool = False) -> Iterator[Connection
 
 
 @contextmanager
-def open_database(database: Settings | str, *, migrated: bool = True) -> Iterator[Engine]:
+def open_database(
+    database: Settings | str, *, migrated: bool = True, create: bool = False
+) -> Iterator[Engine]:
     """An engine for ``database`` (the settings' database, with their connect timeout, or a
-    URL), disposed of on exit; checked to be migrated unless told not to.
+    URL), disposed of on exit; checked to be migrated unless told not to. A SQLite file that
+    does not exist is refused (``require_exists``) unless ``create`` (``catenary db upgrade``).
 
     The usual start of a command::
 
@@ -197,6 +200,8 @@ def open_database(database: Settings | str, *, migrated: bool = True) -> Iterato
     else:
         engine = make_engine(database.database_url, connect_timeout_s=database.connect_timeout_s)
     try:
+        if not create:
+            require_exists(engine)
         if migrated:
             require_migrated(engine)
         yield engine
@@ -222,6 +227,17 @@ def session_scope(engine: Engine, *, read_only: bool = False) -> Iterator[Sessio
         raise
     finally:
         session.close()
+
+
+def require_exists(engine: Engine) -> None:
+    """Raise ``DatabaseNotMigrated`` for a SQLite file that does not exist: connecting would
+    create it empty."""
+    file = _sqlite_file(engine.url) if engine.dialect.name == "sqlite" else None
+    if file is not None and not file.exists():
+        raise DatabaseNotMigrated(
+            f"database {mask_url(engine.url)} does not exist: run 'catenary db upgrade' to "
+            "create it"
+        )
 
 
 def require_migrated(engine: Engine) -> None:

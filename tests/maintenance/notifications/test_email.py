@@ -15,6 +15,7 @@ from typing import Any
 import pytest
 from sqlalchemy import Engine, select
 
+from catenary.errors import UserError
 from catenary.maintenance.notifications import deliver_pending
 from catenary.plugins import PluginRegistry
 from catenary.storage.database import session_scope
@@ -109,52 +110,34 @@ def test_the_message_names_the_alert(
 
 
 @pytest.mark.parametrize(
-    ("settings", "password", "error"),
+    ("settings", "error"),
     [
         (
             {"username": "catenary", "password": "s3cret"},
-            None,
             "email settings: password may not be written in the config file; name the "
             "environment variable that holds it in password_env",
         ),
         (
-            {
-                "username": "catenary",
-                "password_env": "TEST_SMTP_PASSWORD",
-                "allow_plain_auth": True,
-            },
-            None,
-            "email settings: environment variable TEST_SMTP_PASSWORD (password_env) is not set",
-        ),
-        (
             {"username": "catenary", "password_env": "TEST_SMTP_PASSWORD"},
-            "s3cret",
             'email settings: security = "none" with a username would send the password in clear',
         ),
         (
             {"username": "catenary", "password_env": "TEST_SMTP_PASSWORD", "allow_plain_auth": 1},
-            "s3cret",
             "email settings: allow_plain_auth must be true or false, not 1",
         ),
-        (
-            {
-                "username": "catenary",
-                "password_env": "TEST_SMTP_PASSWORD",
-                "allow_plain_auth": True,
-            },
-            "wrong",
-            "SMTPAuthenticationError: (535, ",
-        ),
+        ({"username": "catenary"}, "email settings: password_env must name an environment var"),
         (
             {"hots": "smtp"},
-            None,
             "email settings: unknown key 'hots' (known: allow_plain_auth, ca_file, ",
         ),
-        ({"security": "tls"}, None, "email settings: security must be one of starttls, ssl, none"),
-        ({"to": "ops@example.org"}, None, "email settings: to must be a list of addresses"),
+        ({"security": "tls"}, "email settings: security must be one of starttls, ssl, none"),
+        ({"to": "ops@example.org"}, "email settings: to must be a list of addresses"),
+        ({"port": "25"}, "email settings: port must be a port number, not '25'"),
+        ({"port": 70000}, "email settings: port must be a port number, not 70000"),
+        ({"host": ""}, "email settings: host must be a non-empty string, not ''"),
     ],
 )
-def test_failures_are_recorded_and_nothing_is_sent(
+def test_settings_errors_are_refused_before_any_attempt(
     engine: Engine,
     alerts: Any,
     make_settings: Any,
@@ -162,15 +145,46 @@ def test_failures_are_recorded_and_nothing_is_sent(
     registry: PluginRegistry,
     monkeypatch: pytest.MonkeyPatch,
     settings: dict[str, Any],
+    error: str,
+) -> None:
+    """Found when the configuration is read, not at every send: no attempt is used up."""
+    monkeypatch.setenv("TEST_SMTP_PASSWORD", "s3cret")
+    alerts("a")
+    config = make_settings(email_config(smtp_server, **settings))
+    with pytest.raises(UserError) as caught:
+        deliver(engine, registry, config)
+    assert str(caught.value).startswith(f"{config.config_path}: notification channel 'mail': ")
+    assert error in str(caught.value)
+    assert smtp_server.received == []
+    with session_scope(engine) as session:
+        assert session.scalars(select(AlertNotification)).all() == []
+
+
+@pytest.mark.parametrize(
+    ("password", "error"),
+    [
+        (None, "email settings: environment variable TEST_SMTP_PASSWORD (password_env) is not set"),
+        ("wrong", "SMTPAuthenticationError: (535, "),
+    ],
+)
+def test_failures_at_send_time_are_recorded_and_nothing_is_sent(
+    engine: Engine,
+    alerts: Any,
+    make_settings: Any,
+    smtp_server: Any,
+    registry: PluginRegistry,
+    monkeypatch: pytest.MonkeyPatch,
     password: str | None,
     error: str,
 ) -> None:
+    """The password is the sending service's (its environment): read, and wrong, at send time."""
     if password is None:
         monkeypatch.delenv("TEST_SMTP_PASSWORD", raising=False)
     else:
         monkeypatch.setenv("TEST_SMTP_PASSWORD", password)
     alerts("a")
-    config = email_config(smtp_server, **settings)
+    settings = {"username": "catenary", "password_env": "TEST_SMTP_PASSWORD"}
+    config = email_config(smtp_server, allow_plain_auth=True, **settings)
     (attempt,) = deliver(engine, registry, make_settings(config)).attempts
     assert not attempt.sent
     assert error in attempt.error

@@ -91,6 +91,7 @@ def test_errors_are_one_line(engine: Engine, tmp_path: Path, database_url: str) 
 
     channel = {"notifier": "webhook", "settings": {"url": "http://127.0.0.1:9/x"}}
     good = write_config(tmp_path / "good.toml", {"notifications": {"channels": [channel]}})
+    (tmp_path / "other.sqlite").touch()
     unmigrated = f"sqlite:///{tmp_path / 'other.sqlite'}"
     result = catenary(good, unmigrated, "notify", "status")
     assert result.exit_code == 1
@@ -110,3 +111,71 @@ def test_status_escapes_control_characters_of_stored_names(
     assert result.exit_code == 0, result.output
     row, _summary = result.output.splitlines()
     assert "masts M1\\x1b[2J-M2\\r\\n wire 0 -> hook" in row
+
+
+def test_requeue_queues_again_those_that_gave_up(
+    engine: Engine, alerts: Any, http_server: Any, tmp_path: Path, database_url: str
+) -> None:
+    """A channel that failed until it gave up, then fixed: requeue, and the next pass sends."""
+    first, second = alerts("a"), alerts("b")
+    http_server.statuses = [500, 500]
+    channel = {"name": "hook", "notifier": "webhook", "settings": {"url": http_server.url}}
+    config = write_config(
+        tmp_path / "c.toml", {"notifications": {"max_attempts": 1, "channels": [channel]}}
+    )
+    result = catenary(config, database_url, "notify", "deliver")
+    assert result.output.splitlines()[-1] == "2 queued, 0 sent, 0 failed (retried later), 2 gave up"
+
+    result = catenary(config, database_url, "notify", "requeue", "--alert", str(first))
+    assert result.exit_code == 0, result.output
+    assert result.output == "1 failed notification(s) queued again\n"
+    with session_scope(engine) as session:
+        rows = {r.alert_id: r for r in session.scalars(select(AlertNotification))}
+    assert (rows[first].status, rows[first].attempts, rows[first].last_error) == (
+        "pending",
+        0,
+        None,
+    )
+    assert (rows[second].status, rows[second].attempts) == ("failed", 1)
+
+    result = catenary(config, database_url, "notify", "deliver")
+    assert result.output.splitlines() == [
+        f"sent     alert {first} to hook",
+        "0 queued, 1 sent, 0 failed (retried later), 0 gave up",
+    ]
+    result = catenary(config, database_url, "notify", "requeue", "--channel", "hook")
+    assert result.output == "1 failed notification(s) queued again\n"
+    result = catenary(config, database_url, "notify", "requeue")
+    assert result.output == "0 failed notification(s) queued again\n"
+
+
+def test_requeue_refuses_a_channel_not_configured(
+    engine: Engine, tmp_path: Path, database_url: str
+) -> None:
+    channel = {"name": "hook", "notifier": "webhook", "settings": {"url": "http://127.0.0.1:9/"}}
+    config = write_config(tmp_path / "c.toml", {"notifications": {"channels": [channel]}})
+    result = catenary(config, database_url, "notify", "requeue", "--channel", "hookk")
+    assert result.exit_code == 1
+    assert (
+        result.output
+        == "Error: --channel hookk: no such notification channel (did you mean hook?)\n"
+    )
+
+
+def test_a_wrong_channel_is_refused_when_a_command_starts(
+    engine: Engine, alerts: Any, tmp_path: Path, database_url: str
+) -> None:
+    """One line naming the channel and the key, before anything is queued or sent."""
+    alerts("a")
+    channel = {"name": "ops", "notifier": "webhook", "settings": {"url": "file:///tmp/x"}}
+    config = write_config(tmp_path / "c.toml", {"notifications": {"channels": [channel]}})
+    expected = (
+        f"Error: {config}: notification channel 'ops': webhook settings: url must be an "
+        "http(s) URL, not 'file://'\n"
+    )
+    for command in (["notify", "deliver"], ["notify", "requeue"], ["scheduler"]):
+        result = catenary(config, database_url, *command)
+        assert result.exit_code == 1, result.output
+        assert result.output == expected
+    with session_scope(engine) as session:
+        assert session.scalars(select(AlertNotification)).all() == []

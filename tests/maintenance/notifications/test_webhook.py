@@ -10,6 +10,7 @@ from typing import Any
 import pytest
 from sqlalchemy import Engine, select
 
+from catenary.errors import UserError
 from catenary.maintenance.notifications import deliver_pending
 from catenary.plugins import PluginRegistry
 from catenary.storage.database import session_scope
@@ -191,11 +192,24 @@ def test_any_answer_but_2xx_fails(
     [
         ({"url_env": "X"}, "webhook settings: give url or url_env (one of them)"),
         ({"url": "ftp://host/x"}, "webhook settings: url must be an http(s) URL, not 'ftp://host'"),
+        (
+            {"url": "file:///etc/passwd"},
+            "webhook settings: url must be an http(s) URL, not 'file://'",
+        ),
+        (
+            {"url": "http://127.0.0.1:http/x"},
+            "webhook settings: url has a port that is not 1-65535",
+        ),
+        (
+            {"url": "http://127.0.0.1:70000/"},
+            "webhook settings: url has a port that is not 1-65535",
+        ),
         ({"headers": {"X-N": 1}}, "webhook settings: headers must be a table of strings"),
+        ({"headers_env": {"X-N": ""}}, "webhook settings: headers_env must name an environment"),
         ({"timeout": 0}, "webhook settings: timeout must be a positive number, not 0"),
     ],
 )
-def test_settings_errors_are_recorded(
+def test_settings_errors_are_refused_before_any_attempt(
     engine: Engine,
     alerts: Any,
     make_settings: Any,
@@ -205,8 +219,33 @@ def test_settings_errors_are_recorded(
     settings: dict[str, Any],
     error: str,
 ) -> None:
+    """Found when the configuration is read, not at every send: no attempt is used up."""
     alerts("a")
-    config = hook_config(**({"url": http_server.url} | settings))
-    (attempt,) = deliver(engine, registry, make_settings(config), clock).attempts
-    assert attempt.error == f"SettingsError: {error}"
+    config = make_settings(hook_config(**({"url": http_server.url} | settings)))
+    with pytest.raises(UserError) as caught:
+        deliver(engine, registry, config, clock)
+    assert str(caught.value).startswith(f"{config.config_path}: notification channel 'hook': ")
+    assert error in str(caught.value)
     assert http_server.requests == []
+    with session_scope(engine) as session:
+        assert session.scalars(select(AlertNotification)).all() == []
+
+
+def test_a_url_from_the_environment_is_read_at_send_time(
+    engine: Engine,
+    alerts: Any,
+    make_settings: Any,
+    registry: PluginRegistry,
+    clock: Any,
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The variable is the sending service's: a wrong value is a failed attempt, retried."""
+    monkeypatch.setenv("TEST_HOOK_URL", "file:///etc/passwd")
+    alerts("a")
+    channel = {"name": "hook", "notifier": "webhook", "settings": {"url_env": "TEST_HOOK_URL"}}
+    config = make_settings({"notifications": {"channels": [channel]}})
+    (attempt,) = deliver(engine, registry, config, clock).attempts
+    assert attempt.error == (
+        "SettingsError: webhook settings: url (url_env) must be an http(s) URL, not 'file://'"
+    )
+    assert only_row(engine).next_attempt_at is not None

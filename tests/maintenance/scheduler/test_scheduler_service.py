@@ -174,6 +174,7 @@ def test_restarts_neither_repeat_nor_lose_a_run(
 
 
 def test_an_unmigrated_database_is_one_line(tmp_path: Path) -> None:
+    (tmp_path / "empty.sqlite").touch()
     url = f"sqlite:///{tmp_path / 'empty.sqlite'}"
     result = subprocess.run(
         [CATENARY, "--db", url, "scheduler"], capture_output=True, text=True, timeout=60
