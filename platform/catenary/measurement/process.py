@@ -114,10 +114,12 @@ class ProcessRequest:
 
 @dataclass(frozen=True)
 class ProcessResult:
-    """What was stored (or found already stored: ``already_stored``)."""
+    """What was stored (or found already stored: ``already_stored``, and then whether its
+    alerts are still to be evaluated: ``alerts_pending``)."""
 
     run_id: int
     already_stored: bool
+    alerts_pending: bool = False
     replaced: bool = False
     header: RunHeader | None = None
     line: str = ""
@@ -482,7 +484,12 @@ def process_run(
         with session_scope(engine, read_only=True) as session:
             stored = find_stored_run(session, inputs.source_sha256, geometry.name, rig_sha256)
             if stored is not None and not request.replace:
-                return ProcessResult(run_id=stored.id, already_stored=True, header=inputs.header)
+                return ProcessResult(
+                    run_id=stored.id,
+                    already_stored=True,
+                    alerts_pending=stored.alerts_evaluated_at is None,
+                    header=inputs.header,
+                )
             replaced = None if stored is None else stored.id
 
         on_start(inputs.header)
@@ -555,6 +562,7 @@ def process_run(
                             encoder_scale=alignment.scale,
                             alignment_matched=alignment.matched,
                             alignment_rms_m=alignment.residual_rms_m if alignment.aligned else None,
+                            alerts_evaluated_at=None,  # new or replaced spans: pending
                         ),
                     )
                     final = folder / f"run-{run.id}-{token}.parquet"

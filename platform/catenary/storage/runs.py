@@ -14,7 +14,14 @@ from catenary.errors import UserError
 from catenary.storage.models import Line, Mast, RigCalibration, Run, SpanMeasurement, Track
 from catenary.storage.rigs import register_rig_calibration
 
-__all__ = ["find_run", "find_stored_run", "register_track", "store_run", "track_masts"]
+__all__ = [
+    "find_run",
+    "find_stored_run",
+    "pending_runs",
+    "register_track",
+    "store_run",
+    "track_masts",
+]
 
 
 def register_track(session: Session, line_code: str, track_code: str) -> tuple[Line, Track]:
@@ -139,3 +146,13 @@ def find_run(session: Session, reference: str) -> Run:
     if run is None:
         raise UserError(f"no run {number} in the database")
     return run
+
+
+def pending_runs(session: Session, *, line: str | None = None) -> list[int]:
+    """The complete runs (on ``line``: of it) whose alerts are not evaluated yet, by id."""
+    query = select(Run.id).where(
+        Run.status == "complete", Run.track_id.is_not(None), Run.alerts_evaluated_at.is_(None)
+    )
+    if line is not None:
+        query = query.join(Line, Run.line_id == Line.id).where(Line.code == line)
+    return list(session.scalars(query.order_by(Run.id)))
