@@ -107,12 +107,12 @@ EVERY_SPAN_POLICY = """
 
 
 @contextmanager
-def default_database() -> Iterator[Session]:
+def default_database(*, read_only: bool = False) -> Iterator[Session]:
     """A session on the default database (in the test's data directory), migrated."""
     engine = make_engine(load_settings().database_url)
     try:
         migrate.upgrade(engine)
-        with session_scope(engine) as session:
+        with session_scope(engine, read_only=read_only) as session:
             yield session
     finally:
         engine.dispose()

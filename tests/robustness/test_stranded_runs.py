@@ -7,7 +7,11 @@ from __future__ import annotations
 import re
 import signal
 import subprocess
+import sys
+import time
 from pathlib import Path
+
+import sqlalchemy as sa
 
 from .conftest import assert_refused, assert_succeeded, catenary
 from .stranded_support import (
@@ -15,6 +19,7 @@ from .stranded_support import (
     KILLED_AFTER_COMMIT,
     SmallRuns,
     alerting_config,
+    default_database,
     install_plugin,
     small_runs,
     stored_runs,
@@ -103,3 +108,35 @@ def test_one_broken_track_does_not_stop_the_others(small_runs: SmallRuns, tmp_pa
     )
     assert "1 run(s) evaluated for the first time" in evaluated.stdout
     assert stored_runs() == ([1, 2], [1], _new_alerts(evaluated.stdout))
+
+
+def test_a_process_killed_before_its_commit_leaves_no_samples_file_for_the_next_one(
+    small_runs: SmallRuns, tmp_path: Path, isolated_environment: Path
+) -> None:
+    """``kill -9`` once the samples file has the run's name but before the commit (SQLite's
+    commit waits for a reader to finish): no row, and the next ``process`` removes the file
+    the killed one named for its run, and stores the run with one samples file."""
+    config = alerting_config(tmp_path)
+    samples = isolated_environment / "samples"
+    command = [
+        sys.executable, "-m", "catenary.cli", "--config", config, "process", small_runs.runs[0],
+        "--rig", small_runs.rig, "--masts", small_runs.masts[0],
+    ]  # fmt: skip
+    with default_database(read_only=True) as reading:
+        reading.execute(sa.text("SELECT count(*) FROM runs"))  # a reader: the commit waits
+        killed = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        try:
+            deadline = time.monotonic() + 60.0
+            while not list(samples.glob("run-*.parquet")):
+                assert killed.poll() is None, killed.communicate()[0]
+                assert time.monotonic() < deadline, "the process never named its samples file"
+                time.sleep(0.02)
+        finally:
+            killed.kill()
+            killed.communicate()
+    assert stored_runs() == ([], [], 0)
+    again = _process(small_runs, config)
+    assert_succeeded(again)
+    assert stored_runs()[0] == [1]
+    (line,) = [line for line in again.stdout.splitlines() if line.startswith("samples")]
+    assert [p.name for p in samples.iterdir()] == [Path(line.split(" in ")[1].split()[0]).name]
