@@ -119,7 +119,8 @@ def process(
     if alerts is not None and alerts.failed:
         (failure,) = alerts.failed
         raise UserError(
-            f"run {result.run_id} is stored but its alerts were not evaluated ({failure}): "
+            f"run {result.run_id} is stored but its alerts were not evaluated "
+            f"({printable(str(failure))}): "
             "catenary alerts evaluate --all tries again"
         )
 

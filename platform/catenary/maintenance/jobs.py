@@ -30,6 +30,7 @@ from catenary.maintenance.reports import report_request
 from catenary.plugins import PluginRegistry
 from catenary.storage.database import session_scope
 from catenary.storage.models import utc_now
+from catenary.text import printable
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +61,7 @@ def evaluate_alerts(context: JobContext, fire_time: datetime, options: Mapping[s
         return
     announce_alerts(context.engine, context.registry, evaluation.new)
     for failure in evaluation.failed:
-        log.error("evaluate-alerts: %s (its runs stay pending)", failure)
+        log.error("evaluate-alerts: %s (its runs stay pending)", printable(str(failure)))
     log.info("evaluate-alerts: %s", evaluation.summary())
 
 
