@@ -11,6 +11,7 @@ import uuid
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
 import sqlalchemy as sa
 from sqlalchemy import Engine
 from sqlalchemy.engine import make_url
@@ -22,6 +23,8 @@ from .conftest import assert_succeeded
 from .stranded_support import SmallRuns, small_runs
 
 __all__ = ["small_runs"]  # the fixture, used by name
+
+pytestmark = pytest.mark.slow  # the real CLI on simulated runs
 
 
 def _wait_for(condition: Callable[[], bool], what: str, timeout_s: float = 60.0) -> None:

@@ -11,6 +11,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 import sqlalchemy as sa
 
 from .conftest import assert_refused, assert_succeeded, catenary
@@ -26,6 +27,8 @@ from .stranded_support import (
 )
 
 __all__ = ["small_runs"]  # the fixture, used by name
+
+pytestmark = pytest.mark.slow  # the real CLI on simulated runs
 
 
 def _process(
