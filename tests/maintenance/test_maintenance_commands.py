@@ -48,13 +48,22 @@ def config(tmp_path: Path) -> Path:
 
 
 def test_evaluate_then_list_as_a_planner_reads_it(worn: str, config: Path) -> None:
+    before = invoke(worn, "alerts", "list").output.splitlines()
+    assert before == [
+        "0 alert(s)",
+        "2 run(s) not yet evaluated for alerts (runs 1, 2): catenary alerts evaluate --all",
+    ]
+    assert invoke(worn, "alerts", "list", "--line", "L2").output.splitlines()[-1] == (
+        "1 run(s) on line L2 not yet evaluated for alerts (run 2): catenary alerts evaluate --all"
+    )
     result = invoke(worn, "alerts", "evaluate", "--all", config=config)
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()
     assert lines[0].startswith("alerts     policy china-maintenance-rules, every span: 20 span-")
     assert "horizon 180 days" in lines[0]
     assert lines[1].strip() == "4 new (1 critical, 3 urgent), 0 updated, 0 resolved"
-    assert lines[2].startswith("note       rule china-maintenance-rules#1")  # no sections
+    assert lines[2].strip() == "2 run(s) evaluated for the first time"
+    assert lines[3].startswith("note       rule china-maintenance-rules#1")  # no sections
     listed = invoke(worn, "alerts", "list")
     assert listed.exit_code == 0, listed.output
     rows = listed.output.splitlines()

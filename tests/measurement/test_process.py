@@ -26,17 +26,21 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner, Result
-from sqlalchemy import create_engine, func, select
+from sqlalchemy import Engine, create_engine, func, select
 from sqlalchemy.orm import Session
 
 from catenary.cli import cli
 from catenary.domain import WireObservations
-from catenary.measurement.process import LEGACY_SCRATCH_AGE_S, remove_abandoned_scratch
+from catenary.measurement.process import (
+    LEGACY_SCRATCH_AGE_S,
+    database_fingerprint,
+    remove_abandoned_scratch,
+)
 from catenary.measurement.samples import EXPORT_COLUMNS
 from catenary.measurement.spans import SPAN_COLUMNS
 from catenary.plugins import PluginRegistry, Processor, hookimpl
 from catenary.storage import migrate
-from catenary.storage.database import make_engine
+from catenary.storage.database import make_engine, session_scope
 from catenary.storage.models import Mast, Run, SpanMeasurement
 from catenary_linescan.simulator import DEMO_RIG_PATH, load_rig, record_run
 from catenary_linescan.simulator.captures import write_captures
@@ -408,7 +412,7 @@ def test_scratch_files_of_dead_processes_are_removed_and_live_ones_kept(tmp_path
         "other host": tmp_path / f".pass1-{host}-elsewhere-{dead}-0123456789ab.parquet",
         "legacy new": tmp_path / ".samples-0123456789ab.parquet",
         "legacy old": tmp_path / ".samples-ba9876543210.parquet",
-        "a run's": tmp_path / "run-1-0123456789ab.parquet",
+        "a run's": tmp_path / "run-1-fedcba987654.parquet",
     }
     for path in files.values():
         path.write_bytes(b"")
@@ -419,6 +423,34 @@ def test_scratch_files_of_dead_processes_are_removed_and_live_ones_kept(tmp_path
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
         files[k].name for k in ("live", "other host", "legacy new", "a run's")
     )
+
+
+def test_a_process_killed_while_it_stored_leaves_a_pair_the_next_one_resolves(
+    engine: Engine, build: Any, tmp_path: Path
+) -> None:
+    """Killed between naming its samples file for the run and removing its own name: the run's
+    file is kept if the run was committed, removed if not; another database's pair is left."""
+    folder = tmp_path / "data" / "samples"
+    folder.mkdir(parents=True)
+    host = socket.gethostname()
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)  # fmt: skip
+    ours = database_fingerprint(engine)
+    theirs = "ffffffff" if ours != "ffffffff" else "00000000"
+    pairs = {}
+    for name, token in (("committed", "a" * 12 + ours), ("not committed", "b" * 12 + ours),
+                        ("another database's", "c" * 12 + theirs)):  # fmt: skip
+        placed = folder / f"run-1-{token}.parquet"
+        placed.write_bytes(b"PAR1")
+        hidden = folder / f".samples-{host}-{int(gone.stdout)}-{token}.parquet"
+        os.link(placed, hidden)
+        pairs[name] = (placed, hidden)
+    with session_scope(engine) as session:
+        build.run(session, samples_path=f"samples/{pairs['committed'][0].name}")
+    assert remove_abandoned_scratch(folder) == []  # without the database: nothing to tell
+    removed = remove_abandoned_scratch(folder, engine=engine)
+    assert sorted(removed) == sorted([pairs["committed"][1], *pairs["not committed"]])
+    assert sorted(folder.iterdir()) == sorted([pairs["committed"][0], *pairs["another database's"]])
 
 
 @pytest.mark.slow

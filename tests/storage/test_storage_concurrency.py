@@ -1,4 +1,5 @@
-"""Concurrent transactions: writers wait for each other, readers never wait for a writer."""
+"""Concurrent transactions: writers wait for each other, readers never wait for a writer, and
+two that add the same new rows share them."""
 
 from __future__ import annotations
 
@@ -8,14 +9,20 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 
+import numpy as np
 import pytest
 import sqlalchemy as sa
 from click.testing import CliRunner
 from sqlalchemy import Engine
+from sqlalchemy.orm import Session
 
 from catenary.cli import cli
+from catenary.domain import TrackRegister, VehicleGeometry
 from catenary.storage import database
 from catenary.storage.database import make_engine, session_scope
+from catenary.storage.models import Mast
+from catenary.storage.rigs import register_rig_calibration
+from catenary.storage.runs import register_track, track_masts
 
 
 @pytest.fixture
@@ -120,3 +127,63 @@ def test_read_only_commands_do_not_wait_for_a_writer(
     with _writer_holding_the_lock(database_url, "DELETE FROM alerts"):
         result = CliRunner().invoke(cli, ["--db", database_url, *command])
         assert result.exit_code == 0, result.output
+
+
+REGISTER = TrackRegister(
+    line="L9",
+    track="1",
+    mast=("M1", "M2"),
+    chainage_m=np.array([1000.0, 1050.0]),
+    wire_type=("CTA120", "CTA120"),
+    design_stagger_mm=np.array([200.0, np.nan]),
+)
+GEOMETRY = VehicleGeometry("inspection-car-9", 3900.0, 1100.0, 1800.0)
+
+
+def _waits_for_a_lock(engine: Engine, pid: int | None) -> bool:
+    """Whether PostgreSQL backend ``pid`` waits for a lock (SQLite: after a moment, for its
+    lock: a writer waits when it begins)."""
+    if pid is None:
+        time.sleep(0.3)
+        return True
+    with engine.connect() as connection:
+        query = sa.text("SELECT count(*) FROM pg_locks WHERE pid = :pid AND NOT granted")
+        return bool(connection.execute(query, {"pid": pid}).scalar())
+
+
+def test_two_runs_adding_the_same_new_rows_at_once_share_them(migrated: Engine) -> None:
+    """Two transactions add the same new line, track, masts and vehicle, and two versions of
+    one rig calibration, the second while the first is not committed: no unique key breaks,
+    both end with the same rows and the second calibration is version 2."""
+
+    def add(session: Session, rig_text: str) -> tuple[int, ...]:
+        line, track = register_track(session, "L9", "1")
+        track_masts(session, track, REGISTER)
+        calibration = register_rig_calibration(session, GEOMETRY, "roof-rig", rig_text)
+        masts = session.scalars(sa.select(Mast.id).where(Mast.track_id == track.id)).all()
+        return line.id, track.id, *sorted(masts), calibration.vehicle_id, calibration.version
+
+    postgresql = migrated.dialect.name == "postgresql"
+    started = threading.Event()
+    pid: list[int | None] = []
+
+    def second() -> tuple[int, ...]:
+        with session_scope(migrated) as session:
+            if postgresql:
+                pid.append(session.scalar(sa.text("SELECT pg_backend_pid()")))
+            else:
+                pid.append(None)
+            started.set()
+            return add(session, "a = 2\n")
+
+    with ThreadPoolExecutor(1) as pool:
+        with session_scope(migrated) as session:
+            first = add(session, "a = 1\n")
+            theirs = pool.submit(second)
+            assert started.wait(20)
+            deadline = time.monotonic() + 20
+            while not _waits_for_a_lock(migrated, pid[0]):
+                assert time.monotonic() < deadline, "the second transaction never waited"
+                time.sleep(0.02)
+        result = theirs.result(timeout=30)
+    assert first[:-1] == result[:-1] and (first[-1], result[-1]) == (1, 2)

@@ -72,8 +72,12 @@ def evaluate_command(
     policy_name: str | None,
     policy_file: Path | None,
 ) -> None:
-    """Evaluate the wear limits and forecasts: raise, update and resolve alerts."""
-    from catenary.maintenance.alerts import announce_alerts, evaluate_alerts, horizon_days
+    """Evaluate the wear limits and forecasts: raise, update and resolve alerts.
+
+    Each track is evaluated in a transaction of its own: a track whose evaluation fails is
+    named (its runs stay pending) and the others are still evaluated; the exit status is 1.
+    """
+    from catenary.maintenance.alerts import announce_alerts, evaluate_tracks, horizon_days
     from catenary.storage.database import session_scope
     from catenary.storage.runs import find_run
 
@@ -83,16 +87,18 @@ def evaluate_command(
     policy = _policy(app, policy_name, policy_file)
     horizon = horizon_days(app.settings)
     with app.database() as engine:
-        with session_scope(engine) as session:
-            run_ids = None if run_reference is None else [find_run(session, run_reference).id]
-            result = evaluate_alerts(
-                session,
-                policy,
-                app.registry.wire_types(),
-                run_ids=run_ids,
-                now=_now(),
-                horizon_days=horizon,
-            )
+        run_ids = None
+        if run_reference is not None:
+            with session_scope(engine, read_only=True) as session:
+                run_ids = [find_run(session, run_reference).id]
+        result = evaluate_tracks(
+            engine,
+            policy,
+            app.registry.wire_types(),
+            run_ids=run_ids,
+            now=_now(),
+            horizon_days=horizon,
+        )
         announce_alerts(engine, app.registry, result.new)
     scope = "every span" if run_ids is None else f"run {run_ids[0]}"
     click.echo(
@@ -100,8 +106,14 @@ def evaluate_command(
         f"{result.sections} anchor sections, horizon {horizon:g} days"
     )
     click.echo(f"           {result.summary()}")
+    if result.runs:
+        click.echo(f"           {result.runs} run(s) evaluated for the first time")
     for note in result.notes:
         click.echo(printable(f"note       {note}"))
+    for failure in result.failed:
+        click.echo(printable(f"Error: {failure} (its runs stay pending)"), err=True)
+    if result.failed:
+        ctx.exit(1)
 
 
 def _where(alert: Alert) -> str:
@@ -144,12 +156,15 @@ def list_command(
     line: str | None,
     levels: tuple[str, ...],
 ) -> None:
-    """List alerts, most severe first, then by line, track and chainage."""
+    """List alerts, most severe first, then by line, track and chainage; and how many runs
+    are waiting for their alerts to be evaluated."""
     from catenary.maintenance.alerts import list_alerts
     from catenary.storage.database import session_scope
+    from catenary.storage.runs import pending_runs
 
     with app_of(ctx).database() as engine, session_scope(engine, read_only=True) as session:
         found = list_alerts(session, status=status, line=line, levels=levels)
+        pending = pending_runs(session, line=line)
         for alert in found:
             section = (alert.details or {}).get("anchor_section")
             click.echo(
@@ -161,6 +176,21 @@ def list_command(
                 )
             )
     click.echo(f"{len(found)} alert(s)")
+    if pending:
+        where = "" if line is None else f" on line {line}"
+        click.echo(
+            printable(
+                f"{len(pending)} run(s){where} not yet evaluated for alerts "
+                f"({_ids(pending)}): catenary alerts evaluate --all"
+            )
+        )
+
+
+def _ids(run_ids: list[int], shown: int = 10) -> str:
+    """``runs 4, 7`` (the first ``shown`` of them, then how many more)."""
+    more = f" and {len(run_ids) - shown} more" if len(run_ids) > shown else ""
+    noun = "run" if len(run_ids) == 1 else "runs"
+    return f"{noun} {', '.join(str(i) for i in run_ids[:shown])}{more}"
 
 
 @alerts.command("ack")

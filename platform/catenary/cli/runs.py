@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from catenary.cli.app import INTERRUPTED_EXIT_CODE, app_of
+from catenary.errors import UserError
 from catenary.plugins import database_option
 from catenary.text import identifier_option, printable
 
@@ -96,11 +97,9 @@ def process(
         result = process_run(
             request, settings, app.registry, progress=lambda n: bar[0].update(n), on_start=start
         )
-    if result.already_stored:
-        click.echo(
-            f"{run_path} is already stored with this rig calibration as run {result.run_id}: "
-            "nothing done (--replace processes it again)"
-        )
+    stored = f"{run_path} is already stored with this rig calibration as run {result.run_id}"
+    if result.already_stored and not (result.alerts_pending and alerting.policy is not None):
+        click.echo(f"{stored}: nothing done (--replace processes it again)")
         return
     try:
         with open_database(settings) as engine:
@@ -112,12 +111,24 @@ def process(
             err=True,
         )
         ctx.exit(INTERRUPTED_EXIT_CODE)
-    for text in [*result.summary_lines(), *run_alerts_lines(alerts)]:
+    if result.already_stored:
+        lines = [f"{stored}; its alerts were not evaluated yet: evaluated now"]
+    else:
+        lines = result.summary_lines()
+    for text in [*lines, *run_alerts_lines(alerts)]:
         click.echo(printable(text))
-    click.echo(f"stored as run {result.run_id}")
-    warning = result.warning(run_path)
-    if warning is not None:
-        click.echo(printable(warning), err=True)
+    if not result.already_stored:
+        click.echo(f"stored as run {result.run_id}")
+        warning = result.warning(run_path)
+        if warning is not None:
+            click.echo(printable(warning), err=True)
+    if alerts is not None and alerts.failed:
+        (failure,) = alerts.failed
+        raise UserError(
+            f"run {result.run_id} is stored but its alerts were not evaluated "
+            f"({printable(str(failure))}): "
+            "catenary alerts evaluate --all tries again"
+        )
 
 
 @click.command("export")
@@ -152,7 +163,6 @@ def export(ctx: click.Context, run_reference: str, what: str, output: Path) -> N
 @click.pass_context
 def compare(ctx: click.Context, run_a: str, run_b: str) -> None:
     """Repeatability: the residual thickness of two runs over the same section, point by point."""
-    from catenary.errors import UserError
     from catenary.measurement.compare import compare_profiles
     from catenary.measurement.samples import run_profile
     from catenary.storage.database import open_database, session_scope

@@ -26,11 +26,7 @@ from sqlalchemy.orm import Session
 from catenary.config import Settings
 from catenary.errors import UserError
 from catenary.maintenance.alerts import announce_alerts, evaluate_all
-from catenary.maintenance.notifications import (
-    deliver_pending,
-    notification_config,
-    queue_notifications,
-)
+from catenary.maintenance.notifications import deliver_pending
 from catenary.maintenance.reports import report_request
 from catenary.plugins import PluginRegistry
 from catenary.storage.database import session_scope
@@ -56,15 +52,17 @@ class JobContext:
 
 
 def evaluate_alerts(context: JobContext, fire_time: datetime, options: Mapping[str, Any]) -> None:
-    """Evaluate the alert rules over the fleet and queue the new alerts' notifications, in
-    one transaction, then announce the new alerts (``catenary_alert_raised``)."""
-    with context.session() as session:
-        evaluation = evaluate_all(session, context.settings, context.registry, context.clock())
-        if evaluation is None:
-            log.warning("evaluate-alerts: no wear-limit policy configured ([limits]); skipped")
-            return
-        queue_notifications(session, notification_config(context.settings))
+    """Evaluate the alert rules over the fleet, a track at a time with the new alerts'
+    notifications queued in its transaction, then announce the new alerts
+    (``catenary_alert_raised``). A track whose evaluation fails is logged by name and left
+    pending for the next run; the others are evaluated."""
+    evaluation = evaluate_all(context.engine, context.settings, context.registry, context.clock())
+    if evaluation is None:
+        log.warning("evaluate-alerts: no wear-limit policy configured ([limits]); skipped")
+        return
     announce_alerts(context.engine, context.registry, evaluation.new)
+    for failure in evaluation.failed:
+        log.error("evaluate-alerts: %s (its runs stay pending)", printable(str(failure)))
     log.info("evaluate-alerts: %s", evaluation.summary())
 
 

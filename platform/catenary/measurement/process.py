@@ -20,12 +20,16 @@
    vehicle that did not move, cameras that saw nothing) is refused: nothing is stored. One
    that measured no span (too little track covered) is stored and the command warns.
 5. **Store** in one transaction: the line, track and masts, the vehicle and rig calibration
-   (versioned), the run and its span measurements. The samples file is named after the run
-   and moved into place inside that transaction; a failure anywhere leaves neither a row
-   nor a file behind. That transaction checks again that the run is not stored: the same run
-   processed twice at once is stored once, and the other process says it is already stored
-   (on SQLite it waits for the first's write lock; on PostgreSQL its insert breaks the unique
-   key, which is turned into "already stored") and removes its samples file.
+   (versioned), the run and its span measurements. The samples file gets the run's name
+   (``run-{id}-{token}.parquet``) inside that transaction, as a second name beside the
+   hidden one that names this process, which goes once the run is committed; a failure
+   anywhere leaves neither a row nor a file behind, and a process killed between the two
+   names leaves a pair the next ``process`` resolves by asking the database whether the run
+   was committed (``remove_abandoned_scratch``). That transaction checks again that the run
+   is not stored: the same run processed twice at once is stored once, and the other process
+   says it is already stored (on SQLite it waits for the first's write lock; on PostgreSQL
+   its insert breaks the unique key, which is turned into "already stored") and removes its
+   samples file.
 
 The alerts a stored run raises are not evaluated here (measurement knows nothing of
 maintenance): the command that processes the run evaluates them once it is committed
@@ -52,6 +56,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+from sqlalchemy import Engine, select
 from sqlalchemy.exc import IntegrityError
 
 from catenary.config import Settings
@@ -66,7 +71,7 @@ from catenary.measurement.spans import SpanAccumulator, SpanLayout, SpanStatisti
 from catenary.measurement.vehicle import load_vehicle_geometry
 from catenary.plugins import BlockProcessor, PluginRegistry
 from catenary.storage.database import open_database, session_scope
-from catenary.storage.models import SpanMeasurement
+from catenary.storage.models import Run, SpanMeasurement
 from catenary.storage.runs import find_stored_run, store_run
 from catenary.wiretype import WireType
 
@@ -74,6 +79,7 @@ __all__ = [
     "DEFAULT_PROCESSOR",
     "ProcessRequest",
     "ProcessResult",
+    "database_fingerprint",
     "process_run",
     "remove_abandoned_scratch",
 ]
@@ -125,10 +131,12 @@ def _covered(length_m: float) -> str:
 
 @dataclass(frozen=True)
 class ProcessResult:
-    """What was stored (or found already stored: ``already_stored``)."""
+    """What was stored (or found already stored: ``already_stored``, and then whether its
+    alerts are still to be evaluated: ``alerts_pending``)."""
 
     run_id: int
     already_stored: bool
+    alerts_pending: bool = False
     replaced: bool = False
     header: RunHeader | None = None
     line: str = ""
@@ -450,15 +458,34 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def remove_abandoned_scratch(folder: Path, now_s: float | None = None) -> list[Path]:
+def database_fingerprint(engine: Engine) -> str:
+    """8 hex digits naming ``engine``'s database (its URL without the password) in the names
+    of the samples files it stores, so that a process can tell its own database's files."""
+    url = engine.url.render_as_string(hide_password=True)
+    return hashlib.sha256(url.encode("utf-8")).hexdigest()[:8]
+
+
+def remove_abandoned_scratch(
+    folder: Path, now_s: float | None = None, *, engine: Engine | None = None
+) -> list[Path]:
     """Remove the hidden files that processes of this host left in the samples folder when
     they were killed (``kill -9``, a power cut) and return them; a file whose process still
     runs, or another host's, is left alone. A file named without its process (written before
-    the names carried one) is removed once ``LEGACY_SCRATCH_AGE_S`` old."""
+    the names carried one) is removed once ``LEGACY_SCRATCH_AGE_S`` old.
+
+    A process killed while it stored its run leaves its hidden samples file beside the run's
+    samples file (``run-{id}-{token}.parquet``, a second name of the same file), committed or
+    not. With ``engine``, for a pair of its database (the token ends with its
+    ``database_fingerprint``) the run's file is kept when a run of the database refers to it,
+    and removed with the hidden one when none does; another database's pair is left for its
+    own next process, and so is every pair without ``engine``.
+    """
     host, now_s = socket.gethostname(), time.time() if now_s is None else now_s
+    database = "" if engine is None else database_fingerprint(engine)
     removed = []
     for path in [*folder.glob(".pass1-*.parquet"), *folder.glob(".samples-*.parquet")]:
-        parts = path.name[1 : -len(".parquet")].split("-", 1)[1].rsplit("-", 2)
+        kind, named = path.name[1 : -len(".parquet")].split("-", 1)
+        parts = named.rsplit("-", 2)
         if len(parts) == 3 and parts[1].isdigit():
             abandoned = parts[0] == host and not _alive(int(parts[1]))
         else:
@@ -466,10 +493,27 @@ def remove_abandoned_scratch(folder: Path, now_s: float | None = None) -> list[P
                 abandoned = now_s - path.stat().st_mtime > LEGACY_SCRATCH_AGE_S
             except FileNotFoundError:
                 continue
-        if abandoned:
-            path.unlink(missing_ok=True)
-            removed.append(path)
+        if not abandoned:
+            continue
+        placed = list(folder.glob(f"run-*-{parts[-1]}.parquet")) if kind == "samples" else []
+        if placed:
+            if engine is None or not parts[-1].endswith(database):
+                continue  # another database's run: for it to tell whether it was committed
+            for run_file in placed:
+                if not _refers_to(engine, run_file.relative_to(folder.parent)):
+                    run_file.unlink(missing_ok=True)
+                    removed.append(run_file)
+        path.unlink(missing_ok=True)
+        removed.append(path)
     return removed
+
+
+def _refers_to(engine: Engine, samples: Path) -> bool:
+    """Whether a run of the database has the samples file ``samples`` (relative to the data
+    directory)."""
+    with session_scope(engine, read_only=True) as session:
+        found = session.scalar(select(Run.id).where(Run.samples_path == str(samples)).limit(1))
+        return found is not None
 
 
 def _started_at(header: RunHeader) -> datetime:
@@ -500,7 +544,12 @@ def process_run(
         with session_scope(engine, read_only=True) as session:
             stored = find_stored_run(session, inputs.source_sha256, geometry.name, rig_sha256)
             if stored is not None and not request.replace:
-                return ProcessResult(run_id=stored.id, already_stored=True, header=inputs.header)
+                return ProcessResult(
+                    run_id=stored.id,
+                    already_stored=True,
+                    alerts_pending=stored.alerts_evaluated_at is None,
+                    header=inputs.header,
+                )
             replaced = None if stored is None else stored.id
 
         on_start(inputs.header)
@@ -511,8 +560,8 @@ def process_run(
             raise UserError(
                 f"{folder}: cannot create the samples folder ({exc.strerror})"
             ) from None
-        remove_abandoned_scratch(folder)
-        token = uuid.uuid4().hex[:12]
+        remove_abandoned_scratch(folder, engine=engine)
+        token = uuid.uuid4().hex[:12] + database_fingerprint(engine)
         measured = folder / _scratch_name("pass1", token)
         partial = folder / _scratch_name("samples", token)
         final: Path | None = None
@@ -578,10 +627,14 @@ def process_run(
                             encoder_scale=alignment.scale,
                             alignment_matched=alignment.matched,
                             alignment_rms_m=alignment.residual_rms_m if alignment.aligned else None,
+                            alerts_evaluated_at=None,  # new or replaced spans: pending
                         ),
                     )
+                    # the run's name for the file; the hidden one names this process until
+                    # the commit, so that a kill before or after it is told apart and tidied
+                    # (remove_abandoned_scratch)
                     final = folder / f"run-{run.id}-{token}.parquet"
-                    partial.replace(final)
+                    os.link(partial, final)
                     run.samples_path = str(final.relative_to(settings.data_dir))
                     session.flush()
                     run_id = run.id
@@ -595,6 +648,8 @@ def process_run(
                 if stored is None or replaced is not None:
                     raise
                 raise _StoredMeanwhile(stored.id) from None
+            samples_file, final = final, None  # committed: the run's, whatever happens now
+            partial.unlink()
             if old_samples:
                 (settings.data_dir / old_samples).unlink(missing_ok=True)
         except BaseException as exc:
@@ -622,5 +677,5 @@ def process_run(
         outside_spans=outside,
         faulty=faulty,
         minimum=minimum,
-        samples_path=final,
+        samples_path=samples_file,
     )

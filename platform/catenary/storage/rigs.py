@@ -9,6 +9,7 @@ from sqlalchemy.orm import Session
 
 from catenary.domain import VehicleGeometry
 from catenary.errors import UserError
+from catenary.storage.inserts import get_or_add, insert_new
 from catenary.storage.models import RigCalibration, Vehicle
 
 GEOMETRY_TOLERANCE_MM = 1e-6
@@ -21,18 +22,14 @@ def register_vehicle(session: Session, geometry: VehicleGeometry) -> Vehicle:
     ``UserError`` naming the field): runs measured with the old geometry must stay
     reproducible, so give the rebuilt vehicle a new name.
     """
-    vehicle = session.scalars(select(Vehicle).where(Vehicle.name == geometry.name)).one_or_none()
-    if vehicle is None:
-        vehicle = Vehicle(
-            name=geometry.name,
-            roof_height_mm=geometry.roof_height_mm,
-            sensor_height_mm=geometry.sensor_height_mm,
-            sensor_baseline_mm=geometry.sensor_baseline_mm,
-        )
-        session.add(vehicle)
-        session.flush()
-        return vehicle
-    for field in ("roof_height_mm", "sensor_height_mm", "sensor_baseline_mm"):
+    fields = ("roof_height_mm", "sensor_height_mm", "sensor_baseline_mm")
+    vehicle = get_or_add(
+        session,
+        Vehicle,
+        {"name": geometry.name},
+        {field: getattr(geometry, field) for field in fields},
+    )
+    for field in fields:
         stored, given = getattr(vehicle, field), getattr(geometry, field)
         if abs(stored - given) > GEOMETRY_TOLERANCE_MM:
             raise UserError(
@@ -48,29 +45,29 @@ def register_rig_calibration(
     """The stored rig calibration with this content, or a new version of ``name``.
 
     The same file content (by SHA-256) for the same vehicle is stored once; a changed file of
-    the same name becomes the next version.
+    the same name becomes the next version. A process storing the same calibration, or another
+    version of it, at the same time is no error (``insert_new``).
     """
     vehicle = register_vehicle(session, geometry)
     digest = hashlib.sha256(content_toml.encode("utf-8")).hexdigest()
-    existing = session.scalars(
-        select(RigCalibration).where(
-            RigCalibration.vehicle_id == vehicle.id, RigCalibration.sha256 == digest
+    while True:  # again when a process added this name's next version meanwhile
+        existing = session.scalars(
+            select(RigCalibration).where(
+                RigCalibration.vehicle_id == vehicle.id, RigCalibration.sha256 == digest
+            )
+        ).first()
+        if existing is not None:
+            return existing
+        latest = session.scalar(
+            select(func.max(RigCalibration.version)).where(
+                RigCalibration.vehicle_id == vehicle.id, RigCalibration.name == name
+            )
         )
-    ).first()
-    if existing is not None:
-        return existing
-    latest = session.scalar(
-        select(func.max(RigCalibration.version)).where(
-            RigCalibration.vehicle_id == vehicle.id, RigCalibration.name == name
-        )
-    )
-    calibration = RigCalibration(
-        vehicle=vehicle,
-        name=name,
-        version=(latest or 0) + 1,
-        content_toml=content_toml,
-        sha256=digest,
-    )
-    session.add(calibration)
-    session.flush()
-    return calibration
+        row = {
+            "vehicle_id": vehicle.id,
+            "name": name,
+            "version": (latest or 0) + 1,
+            "content_toml": content_toml,
+            "sha256": digest,
+        }
+        insert_new(session, RigCalibration, [row], ["vehicle_id", "name", "version"])

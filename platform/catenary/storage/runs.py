@@ -11,27 +11,25 @@ from sqlalchemy.orm import Session
 
 from catenary.domain import TrackRegister, VehicleGeometry
 from catenary.errors import UserError
+from catenary.storage.inserts import get_or_add, insert_new
 from catenary.storage.models import Line, Mast, RigCalibration, Run, SpanMeasurement, Track
 from catenary.storage.rigs import register_rig_calibration
 
-__all__ = ["find_run", "find_stored_run", "register_track", "store_run", "track_masts"]
+__all__ = [
+    "find_run",
+    "find_stored_run",
+    "pending_runs",
+    "register_track",
+    "store_run",
+    "track_masts",
+]
 
 
 def register_track(session: Session, line_code: str, track_code: str) -> tuple[Line, Track]:
-    """The line and track with these codes, added if new."""
-    line = session.scalars(select(Line).where(Line.code == line_code)).one_or_none()
-    if line is None:
-        line = Line(code=line_code)
-        session.add(line)
-        session.flush()
-    track = session.scalars(
-        select(Track).where(Track.line_id == line.id, Track.code == track_code)
-    ).one_or_none()
-    if track is None:
-        track = Track(line=line, code=track_code)
-        session.add(track)
-        session.flush()
-    return line, track
+    """The line and track with these codes, added if new (``get_or_add``: a process adding
+    them at the same time is no error)."""
+    line = get_or_add(session, Line, {"code": line_code})
+    return line, get_or_add(session, Track, {"line_id": line.id, "code": track_code})
 
 
 def track_masts(session: Session, track: Track, register: TrackRegister) -> int:
@@ -41,27 +39,43 @@ def track_masts(session: Session, track: Track, register: TrackRegister) -> int:
     design stagger or anchor section differ is updated (the anchor section only when the
     register has that column); masts not in this register are kept (a register file may hold a
     part of the track). Span measurements keep their own mast codes and chainages, so earlier
-    runs are unchanged.
+    runs are unchanged. New masts are added with ``insert_new``: a process adding the same
+    masts at the same time is no error (and the register read last is kept).
     """
-    stored = {m.code: m for m in session.scalars(select(Mast).where(Mast.track_id == track.id))}
+
+    def masts() -> dict[str, Mast]:
+        return {m.code: m for m in session.scalars(select(Mast).where(Mast.track_id == track.id))}
+
     sections = register.anchor_section
-    changed = 0
-    for k, (code, chainage, wire_type, stagger) in enumerate(
-        zip(
-            register.mast,
-            register.chainage_m.tolist(),
-            register.wire_type,
-            register.design_stagger_mm.tolist(),
-            strict=True,
+    rows = [
+        {
+            "track_id": track.id,
+            "code": code,
+            "chainage_m": chainage,
+            "wire_type": wire_type,
+            "design_stagger_mm": None if stagger != stagger else stagger,  # NaN: not given
+            "anchor_section": None if sections is None else sections[k],
+        }
+        for k, (code, chainage, wire_type, stagger) in enumerate(
+            zip(
+                register.mast,
+                register.chainage_m.tolist(),
+                register.wire_type,
+                register.design_stagger_mm.tolist(),
+                strict=True,
+            )
         )
-    ):
-        design = None if stagger != stagger else stagger  # NaN: not given
-        mast = stored.get(code)
-        if mast is None:
-            mast = Mast(track=track, code=code)
-            session.add(mast)
-        section = mast.anchor_section if sections is None else sections[k]
-        values = (chainage, wire_type, design, section)
+    ]
+    stored = masts()
+    changed = insert_new(
+        session, Mast, [r for r in rows if r["code"] not in stored], ["track_id", "code"]
+    )
+    if changed:
+        stored = masts()
+    for row in rows:
+        mast = stored[row["code"]]
+        section = mast.anchor_section if sections is None else row["anchor_section"]
+        values = (row["chainage_m"], row["wire_type"], row["design_stagger_mm"], section)
         if (mast.chainage_m, mast.wire_type, mast.design_stagger_mm, mast.anchor_section) != values:
             mast.chainage_m, mast.wire_type, mast.design_stagger_mm, mast.anchor_section = values
             changed += 1
@@ -139,3 +153,13 @@ def find_run(session: Session, reference: str) -> Run:
     if run is None:
         raise UserError(f"no run {number} in the database")
     return run
+
+
+def pending_runs(session: Session, *, line: str | None = None) -> list[int]:
+    """The complete runs (on ``line``: of it) whose alerts are not evaluated yet, by id."""
+    query = select(Run.id).where(
+        Run.status == "complete", Run.track_id.is_not(None), Run.alerts_evaluated_at.is_(None)
+    )
+    if line is not None:
+        query = query.join(Line, Run.line_id == Line.id).where(Line.code == line)
+    return list(session.scalars(query.order_by(Run.id)))

@@ -10,6 +10,7 @@ import re
 import threading
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import replace
 from datetime import UTC, datetime, timedelta
 from functools import partial
 from typing import Any
@@ -18,12 +19,10 @@ import pytest
 from apscheduler.events import EVENT_JOB_ERROR, EVENT_JOB_EXECUTED, JobExecutionEvent
 from apscheduler.schedulers.background import BackgroundScheduler
 from sqlalchemy import Engine, select, text
-from sqlalchemy.orm import Session
 
 from catenary.config import Settings
 from catenary.errors import UserError
 from catenary.maintenance import jobs
-from catenary.maintenance.alerts import Evaluation
 from catenary.maintenance.jobs import JobContext, run_job
 from catenary.maintenance.scheduler import (
     LeasedScheduler,
@@ -34,7 +33,7 @@ from catenary.maintenance.scheduler import (
 )
 from catenary.plugins import PluginFailure, PluginRegistry
 from catenary.storage.database import session_scope
-from catenary.storage.models import Alert, AlertNotification, Line, Track
+from catenary.storage.models import Alert, AlertNotification, Line, Run, Track
 
 FIRE = datetime(2024, 5, 6, 22, 30, tzinfo=UTC)
 
@@ -290,39 +289,27 @@ def test_evaluate_alerts_skips_without_a_policy(
 
 
 def test_evaluate_alerts_queues_the_new_alerts_in_the_same_transaction(
-    context: JobContext, monkeypatch: pytest.MonkeyPatch
+    context: JobContext, fakes: Any, fleet_of: Any, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    calls: list[tuple[Any, ...]] = []
-
-    def evaluate_all(session: Session, settings: Any, registry: Any, now: datetime) -> Evaluation:
-        calls.append((settings, registry, now))
-        track = Track(line=Line(code="L1"), code="1")
-        alert = Alert(
-            track=track,
-            wire=0,
-            start_chainage_m=0.0,
-            end_chainage_m=50.0,
-            rule="r",
-            level="critical",
-            kind="threshold",
-            value=8.0,
-            threshold=8.5,
-            condition_key="k",
-        )
-        session.add(alert)
-        session.flush()
-        return Evaluation(policy="test", new=[alert.id])
-
+    registry = PluginRegistry(plugins=[("fakes", fakes)])  # the built-in wire types too
+    settings = replace(
+        context.settings,
+        sections={**context.settings.sections, "limits": {"policy": "manufacturer-30pct"}},
+    )
+    context = replace(context, settings=settings, registry=registry)
+    with session_scope(context.engine) as session:
+        fleet = fleet_of(session)
+        fleet.run(fleet.track(), FIRE - timedelta(days=1), {3: 8.6})  # below 8.75 mm
     announced: list[list[int]] = []
-    monkeypatch.setattr(jobs, "evaluate_all", evaluate_all)
     monkeypatch.setattr(
         jobs, "announce_alerts", lambda engine, registry, ids: announced.append(ids)
     )
     run_job("evaluate-alerts", {}, context, FIRE)
-    assert calls == [(context.settings, context.registry, FIRE + timedelta(seconds=2))]
     with session_scope(context.engine) as session:
         (row,) = session.scalars(select(AlertNotification)).all()
         assert (row.notifier, row.status) == ("fake", "pending")
+        (evaluated_at,) = session.scalars(select(Run.alerts_evaluated_at)).all()
+    assert evaluated_at == FIRE + timedelta(seconds=2)  # the context's clock
     assert announced == [[row.alert_id]]
 
 

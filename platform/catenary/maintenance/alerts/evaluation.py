@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from sqlalchemy import (
-    Integer,
     select,
     text,
     update,
@@ -23,7 +22,7 @@ from sqlalchemy.orm import Session, aliased
 
 from catenary.arrays import BoolArray, FloatArray, IntArray
 from catenary.config import Settings
-from catenary.errors import UserError
+from catenary.errors import UserError, one_line
 from catenary.limits import LEVELS, LimitPolicy, choose_policy
 from catenary.maintenance.forecast import (
     CONFIDENCE,
@@ -32,12 +31,18 @@ from catenary.maintenance.forecast import (
     reach_times,
     years_since_epoch,
 )
-from catenary.maintenance.notifications import notification_config, queue_notifications
+from catenary.maintenance.notifications import (
+    NotificationConfig,
+    notification_config,
+    queue_notifications,
+)
 from catenary.storage.database import session_scope
 from catenary.storage.models import (
     Alert,
+    Line,
     MaintenanceAction,
     Run,
+    Track,
 )
 from catenary.wiretype import WireType
 
@@ -65,9 +70,11 @@ __all__ = [
     "RESOLVE_MARGIN_MM",
     "Evaluation",
     "RunAlerting",
+    "TrackFailure",
     "evaluate_alerts",
     "evaluate_all",
     "evaluate_stored_run",
+    "evaluate_tracks",
     "run_alerting",
     "run_alerts_lines",
 ]
@@ -163,11 +170,24 @@ class _Existing:
 # --- evaluation -----------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class TrackFailure:
+    """A track whose evaluation failed (nothing of it written; its runs stay pending)."""
+
+    line: str
+    track: str
+    reason: str
+
+    def __str__(self) -> str:
+        return f"line {self.line} track {self.track}: {self.reason}"
+
+
 @dataclass
 class Evaluation:
     """What an evaluation did: the histories (span-wires) and anchor sections it looked at,
-    the ids of the alerts it raised, how many it updated and resolved, and notes on what it
-    could not evaluate (each said once)."""
+    the ids of the alerts it raised, how many it updated and resolved, how many runs it
+    evaluated for the first time (``runs``), notes on what it could not evaluate (each said
+    once) and the tracks whose evaluation failed."""
 
     policy: str
     spans: int = 0
@@ -176,7 +196,9 @@ class Evaluation:
     new_levels: Counter[str] = field(default_factory=Counter)
     updated: int = 0
     resolved: int = 0
+    runs: int = 0
     notes: list[str] = field(default_factory=list)
+    failed: list[TrackFailure] = field(default_factory=list)
 
     def summary(self) -> str:
         """E.g. ``2 new (1 urgent, 1 plan), 1 updated, 0 resolved``."""
@@ -191,6 +213,19 @@ class Evaluation:
     def note(self, text: str) -> None:
         if text not in self.notes:
             self.notes.append(text)
+
+    def add(self, other: Evaluation) -> None:
+        """Count in ``other``, an evaluation of other tracks with the same policy."""
+        self.spans += other.spans
+        self.sections += other.sections
+        self.new += other.new
+        self.new_levels += other.new_levels
+        self.updated += other.updated
+        self.resolved += other.resolved
+        self.runs += other.runs
+        for note in other.notes:
+            self.note(note)
+        self.failed += other.failed
 
 
 def _same_keys(rows: list[dict[str, Any]]) -> list[list[dict[str, Any]]]:
@@ -436,6 +471,90 @@ def _base(kind: str, rule: str, track_id: int, position: int, stretch: str) -> s
     return base
 
 
+def _mark_evaluated(
+    session: Session, run_ids: IntArray, only: Sequence[int] | None, now: datetime
+) -> int:
+    """Mark the pending runs of ``run_ids`` (the runs a track's evaluation read; ``only``: of
+    these) evaluated at ``now``; returns how many."""
+    chosen = set(run_ids.tolist()) if only is None else set(run_ids.tolist()) & set(only)
+    if not chosen:
+        return 0
+    marked = session.connection().execute(
+        update(Run)
+        .where(Run.id.in_(sorted(chosen)), Run.alerts_evaluated_at.is_(None))
+        .values(alerts_evaluated_at=now)
+    )
+    return marked.rowcount
+
+
+@dataclass(frozen=True)
+class _Setup:
+    """What every track of one evaluation is evaluated with."""
+
+    rules: list[Rule]
+    types: list[WireType]
+    now: datetime
+    horizon_days: float
+
+    @classmethod
+    def of(
+        cls,
+        policy: LimitPolicy,
+        wire_types: Mapping[str, WireType],
+        now: datetime | None,
+        horizon_days: float,
+    ) -> _Setup:
+        types = [wire_types[n] for n in sorted(wire_types)]
+        return cls(rules_of(policy, types), types, now or datetime.now(UTC), horizon_days)
+
+    def evaluate(
+        self,
+        session: Session,
+        tracks: Sequence[int],
+        run_ids: Sequence[int] | None,
+        result: Evaluation,
+    ) -> None:
+        """Evaluate ``tracks`` in the caller's transaction and mark the runs evaluated."""
+        if session.get_bind().dialect.name == "postgresql":
+            # compiling each track's scan costs a tenth of a second and saves nothing on it
+            session.execute(text("SET LOCAL jit = off"))
+        for track_id in tracks:
+            track = _Track(session, track_id, self.rules, self.types, self.now, self.horizon_days)
+            track.evaluate(run_ids, result)
+            track.flush(result)
+            result.runs += _mark_evaluated(session, track.data.run_id, run_ids, self.now)
+
+    def note_unmeasured_sections(self, result: Evaluation) -> None:
+        if result.sections == 0:
+            for rule in self.rules:
+                if rule.rule.scope == SECTION:
+                    result.note(
+                        f"rule {rule.name} ({rule.rule.criterion}, anchor section average) was "
+                        "evaluated on nothing: no anchor section measured (the mast register's "
+                        "column anchor_section names them)"
+                    )
+
+
+def _tracks_of(
+    session: Session, run_ids: Sequence[int] | None, result: Evaluation
+) -> list[tuple[int, str, str]]:
+    """The tracks that runs ``run_ids`` measured (None: every track with a complete run), as
+    (id, line code, track code); raises ``UserError`` for a run id that does not exist."""
+    query = select(Track.id, Line.code, Track.code).join(Line, Track.line_id == Line.id)
+    if run_ids is None:
+        measured = select(Run.id).where(Run.track_id == Track.id, Run.status == "complete")
+        query = query.where(measured.exists())
+    else:
+        found = dict(session.execute(select(Run.id, Run.track_id).where(Run.id.in_(run_ids))).all())
+        missing = sorted(set(run_ids) - set(found))
+        if missing:
+            raise UserError(f"no run {missing[0]} in the database")
+        if any(track is None for track in found.values()):
+            result.note("runs without a track are not evaluated (alerts are kept per track)")
+        query = query.where(Track.id.in_({t for t in found.values() if t is not None}))
+    return [(int(t), line, code) for t, line, code in session.execute(query.order_by(Track.id))]
+
+
 def evaluate_alerts(
     session: Session,
     policy: LimitPolicy,
@@ -446,64 +565,74 @@ def evaluate_alerts(
     horizon_days: float = DEFAULT_HORIZON_DAYS,
 ) -> Evaluation:
     """Evaluate ``policy`` on the spans runs ``run_ids`` measured (None: every span of the
-    fleet) at ``now`` (default: the current time), forecasting ``horizon_days`` ahead.
+    fleet) at ``now`` (default: the current time), forecasting ``horizon_days`` ahead, and
+    mark the runs evaluated (those of ``run_ids``, or every run of the tracks evaluated).
 
     Runs in the caller's transaction (see the module docstring for what it raises, updates and
     resolves). Raises ``UserError`` for a run id that does not exist, or a policy limit that a
     wire type cannot reach.
     """
-    now = now or datetime.now(UTC)
-    names = sorted(wire_types)
-    types = [wire_types[n] for n in names]
-    rules = rules_of(policy, types)
+    setup = _Setup.of(policy, wire_types, now, horizon_days)
     result = Evaluation(policy=policy.name)
-    tracks: list[int]
-    if run_ids is None:
-        tracks = list(
-            session.scalars(
-                select(Run.track_id.cast(Integer))
-                .where(Run.track_id.is_not(None), Run.status == "complete")
-                .distinct()
-                .order_by(Run.track_id)
-            )
-        )
-    else:
-        found = dict(session.execute(select(Run.id, Run.track_id).where(Run.id.in_(run_ids))).all())
-        missing = sorted(set(run_ids) - set(found))
-        if missing:
-            raise UserError(f"no run {missing[0]} in the database")
-        if any(track is None for track in found.values()):
-            result.note("runs without a track are not evaluated (alerts are kept per track)")
-        tracks = sorted({t for t in found.values() if t is not None})
-    if session.get_bind().dialect.name == "postgresql":
-        # compiling each track's scan costs a tenth of a second and saves nothing on it
-        session.execute(text("SET LOCAL jit = off"))
-    for track_id in tracks:
-        track = _Track(session, track_id, rules, types, now, horizon_days)
-        track.evaluate(run_ids, result)
-        track.flush(result)
-    if result.sections == 0:
-        for rule in rules:
-            if rule.rule.scope == SECTION:
-                result.note(
-                    f"rule {rule.name} ({rule.rule.criterion}, anchor section average) was "
-                    "evaluated on nothing: no anchor section measured (the mast register's "
-                    "column anchor_section names them)"
-                )
+    tracks = [t for t, _, _ in _tracks_of(session, run_ids, result)]
+    setup.evaluate(session, tracks, run_ids, result)
+    setup.note_unmeasured_sections(result)
+    return result
+
+
+def evaluate_tracks(
+    engine: Engine,
+    policy: LimitPolicy,
+    wire_types: Mapping[str, WireType],
+    *,
+    run_ids: Sequence[int] | None = None,
+    now: datetime | None = None,
+    horizon_days: float = DEFAULT_HORIZON_DAYS,
+    notifications: NotificationConfig | None = None,
+) -> Evaluation:
+    """``evaluate_alerts`` with each track in a transaction of its own, the new alerts'
+    notifications queued in it (``notifications``: the channels; None: not queued).
+
+    A track whose evaluation raises is rolled back, left pending and listed in ``failed``
+    (line and track codes, the reason); the other tracks are still evaluated and committed.
+    Announce the new alerts once it returns (``announce_alerts``).
+    """
+    setup = _Setup.of(policy, wire_types, now, horizon_days)
+    result = Evaluation(policy=policy.name)
+    with session_scope(engine, read_only=True) as session:
+        tracks = _tracks_of(session, run_ids, result)
+    for track_id, line, code in tracks:
+        part = Evaluation(policy=policy.name)
+        try:
+            with session_scope(engine) as session:
+                setup.evaluate(session, [track_id], run_ids, part)
+                if notifications is not None and part.new:
+                    queue_notifications(session, notifications)
+        except Exception as exc:  # a rule, a plugin or the track's data: the others go on
+            result.failed.append(TrackFailure(line, code, one_line(exc)))
+            continue
+        result.add(part)
+    setup.note_unmeasured_sections(result)
     return result
 
 
 def evaluate_all(
-    session: Session, settings: Settings, registry: PluginRegistry, now: datetime
+    engine: Engine, settings: Settings, registry: PluginRegistry, now: datetime
 ) -> Evaluation | None:
     """Every span of the fleet with the configured policy (``[limits]``) and horizon
-    (``[maintenance]``) at ``now``: the scheduler's job. None without a policy. Runs in the
-    caller's transaction; announce the new alerts once it is committed (``announce_alerts``)."""
+    (``[maintenance]``) at ``now``, a track at a time with the new alerts' notifications
+    queued (``evaluate_tracks``): the scheduler's job. None without a policy. Announce the new
+    alerts once it returns (``announce_alerts``)."""
     policy = choose_policy(settings, registry.limit_policies())
     if policy is None:
         return None
-    return evaluate_alerts(
-        session, policy, registry.wire_types(), now=now, horizon_days=horizon_days(settings)
+    return evaluate_tracks(
+        engine,
+        policy,
+        registry.wire_types(),
+        now=now,
+        horizon_days=horizon_days(settings),
+        notifications=notification_config(settings),
     )
 
 
@@ -538,18 +667,18 @@ def evaluate_stored_run(
     run_id: int,
 ) -> Evaluation | None:
     """Evaluate a committed run's spans (None without a policy), in a transaction of its own
-    with the new alerts' notifications queued, then announce the new alerts."""
+    with the new alerts' notifications queued, then announce the new alerts. A failure of its
+    track's evaluation is in ``failed`` (the run stays pending)."""
     if alerting.policy is None:
         return None
-    with session_scope(engine) as session:
-        result = evaluate_alerts(
-            session,
-            alerting.policy,
-            alerting.wire_types,
-            run_ids=[run_id],
-            horizon_days=alerting.horizon_days,
-        )
-        queue_notifications(session, notification_config(settings))
+    result = evaluate_tracks(
+        engine,
+        alerting.policy,
+        alerting.wire_types,
+        run_ids=[run_id],
+        horizon_days=alerting.horizon_days,
+        notifications=notification_config(settings),
+    )
     announce_alerts(engine, registry, result.new)
     return result
 
@@ -558,6 +687,8 @@ def run_alerts_lines(result: Evaluation | None) -> list[str]:
     """The alert lines of a stored run's summary."""
     if result is None:
         return ["alerts     not evaluated: no wear-limit policy ([limits] policy in the config)"]
+    if result.failed:
+        return ["alerts     not evaluated"]
     return [
         f"alerts     {result.summary()} (policy {result.policy})",
         *(f"           {note}" for note in result.notes),
