@@ -198,6 +198,11 @@ def test_name_defaults_to_the_file_stem(tmp_path: Path) -> None:
         ("sensor_baseline_mm = 1800.0", "sensor_baseline_mm = nan", ["sensor_baseline_mm", "nan"]),
         ("sensor_baseline_mm = 1800.0", "sensor_baseline_mm = inf", ["sensor_baseline_mm", "inf"]),
         ('name = "demo-rig"', "name = 4", ["name", "4"]),
+        (
+            'name = "demo-rig"',
+            f'name = "{"v" * 201}"',
+            ["key name is 201 characters long (at most 200)"],
+        ),
         ("sensor_baseline_mm = 1800.0", "sensor_baseline_mm = ", ["not valid TOML"]),
     ],
 )
