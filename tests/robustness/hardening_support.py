@@ -1,9 +1,14 @@
 """What the field-length, read-only, disk-full and hostile-name cases share: a short simulated
-run with its rig calibration and mast register (made once per worker), and counts of what a
-database holds."""
+run with its rig calibration and mast register (made once per worker), counts of what a
+database holds, and the command run under a file size limit."""
 
 from __future__ import annotations
 
+import os
+import resource
+import signal
+import subprocess
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -49,3 +54,24 @@ def row_counts(engine: Engine) -> dict[str, int]:
             name: int(connection.scalar(select(func.count()).select_from(table)) or 0)
             for name, table in Base.metadata.tables.items()
         }
+
+
+def catenary_with_file_size_limit(
+    limit_bytes: int, *args: str | os.PathLike[str], timeout: float = 120.0
+) -> subprocess.CompletedProcess[str]:
+    """``catenary ARGS`` in a child process (as ``conftest.catenary``) that may write no file
+    past ``limit_bytes`` (``RLIMIT_FSIZE``, with SIGXFSZ ignored so that a write past it
+    fails with EFBIG, as on a full disk)."""
+
+    def limit() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+    return subprocess.run(
+        [sys.executable, "-m", "catenary.cli", *map(str, args)],
+        env=dict(os.environ),
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        preexec_fn=limit,
+    )

@@ -15,6 +15,7 @@ read back in row groups, so neither side holds a whole run in memory.
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
@@ -79,7 +80,8 @@ class SampleWriter:
     """Writes sample rows to a Parquet file in row groups of ``ROW_GROUP_ROWS``.
 
     ``schema`` is :data:`SAMPLES_SCHEMA` unless given (the pipeline's intermediate file has
-    its own). Use as a context manager; :meth:`abort` removes the file.
+    its own). Use as a context manager; :meth:`abort` removes the file. A write that fails (a
+    full disk) is a ``UserError`` naming the folder.
     """
 
     def __init__(self, path: Path, schema: pa.Schema = SAMPLES_SCHEMA) -> None:
@@ -88,7 +90,16 @@ class SampleWriter:
         self.rows = 0
         self._parts: list[pa.Table] = []
         self._buffered = 0
-        self._writer = pq.ParquetWriter(path, schema)
+        with self._writing():
+            self._writer = pq.ParquetWriter(path, schema)
+
+    @contextmanager
+    def _writing(self) -> Iterator[None]:
+        try:
+            yield
+        except OSError as exc:
+            detail = " ".join(str(exc).split())
+            raise UserError(f"{self.path.parent}: cannot write samples ({detail})") from None
 
     def write(self, columns: Mapping[str, Any]) -> None:
         """Append rows: every column of the schema as an array ``(m,)``."""
@@ -103,15 +114,19 @@ class SampleWriter:
 
     def _flush(self) -> None:
         if self._parts:
-            self._writer.write_table(pa.concat_tables(self._parts), ROW_GROUP_ROWS)
+            with self._writing():
+                self._writer.write_table(pa.concat_tables(self._parts), ROW_GROUP_ROWS)
             self._parts, self._buffered = [], 0
 
     def close(self) -> None:
         self._flush()
-        self._writer.close()
+        with self._writing():
+            self._writer.close()
 
     def abort(self) -> None:
-        self._writer.close()
+        """Close and remove the file (removed all the same when closing fails: a full disk)."""
+        with suppress(OSError):
+            self._writer.close()
         self.path.unlink(missing_ok=True)
 
     def __enter__(self) -> SampleWriter:
