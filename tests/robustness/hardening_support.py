@@ -1,14 +1,16 @@
 """What the field-length, read-only, disk-full and hostile-name cases share: a short simulated
 run with its rig calibration and mast register (made once per worker), counts of what a
-database holds, and the command run under a file size limit."""
+database holds, and the command run under a file size limit or without root's file access."""
 
 from __future__ import annotations
 
+import ctypes
 import os
 import resource
 import signal
 import subprocess
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -56,22 +58,45 @@ def row_counts(engine: Engine) -> dict[str, int]:
         }
 
 
-def catenary_with_file_size_limit(
-    limit_bytes: int, *args: str | os.PathLike[str], timeout: float = 120.0
+def catenary_limited(
+    preexec: Callable[[], None], *args: str | os.PathLike[str], timeout: float = 120.0
 ) -> subprocess.CompletedProcess[str]:
-    """``catenary ARGS`` in a child process (as ``conftest.catenary``) that may write no file
-    past ``limit_bytes`` (``RLIMIT_FSIZE``, with SIGXFSZ ignored so that a write past it
-    fails with EFBIG, as on a full disk)."""
-
-    def limit() -> None:
-        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
-
+    """``catenary ARGS`` in a child process, as ``conftest.catenary`` runs it, with ``preexec``
+    called in the child before it starts (``file_size_limit``, ``without_root_file_access``)."""
     return subprocess.run(
         [sys.executable, "-m", "catenary.cli", *map(str, args)],
         env=dict(os.environ),
         capture_output=True,
         text=True,
         timeout=timeout,
-        preexec_fn=limit,
+        preexec_fn=preexec,
     )
+
+
+def file_size_limit(limit_bytes: int) -> Callable[[], None]:
+    """A child may write no file past ``limit_bytes`` (``RLIMIT_FSIZE``, with SIGXFSZ ignored so
+    that a write past it fails with EFBIG, as on a full disk)."""
+
+    def limit() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+
+    return limit
+
+
+_PR_CAPBSET_DROP = 24
+# CAP_DAC_OVERRIDE, CAP_DAC_READ_SEARCH, CAP_FOWNER: what lets root ignore a file's permissions
+_FILE_ACCESS_CAPABILITIES = (1, 2, 3)
+
+
+def without_root_file_access() -> None:
+    """In a child: when running as root, drop the capabilities that let root write what its
+    permissions forbid (from the bounding set, so that the command it starts has none of them);
+    the child then meets a file's permission bits as its owner does. Nothing to do for others.
+    """
+    if os.geteuid() != 0:
+        return
+    libc = ctypes.CDLL(None, use_errno=True)
+    for capability in _FILE_ACCESS_CAPABILITIES:
+        if libc.prctl(_PR_CAPBSET_DROP, capability, 0, 0, 0) != 0:
+            raise OSError(ctypes.get_errno(), f"prctl(PR_CAPBSET_DROP, {capability})")

@@ -11,9 +11,16 @@ import pytest
 from sqlalchemy import Engine
 
 from catenary.measurement.runfile import open_run
+from catenary.storage.database import make_engine
 
 from .conftest import assert_refused, assert_succeeded, catenary
-from .hardening_support import SmallRun, catenary_with_file_size_limit, row_counts, small_run
+from .hardening_support import (
+    SmallRun,
+    catenary_limited,
+    file_size_limit,
+    row_counts,
+    small_run,
+)
 
 BLOCK_SCANS = 128
 RECORD_LIMIT_BYTES = 24 << 20  # the simulated run needs about 40 MiB
@@ -28,8 +35,8 @@ def test_a_recording_that_fills_the_disk_keeps_its_complete_blocks(
     run: SmallRun, engine: Engine, database_url: str, tmp_path: Path
 ) -> None:
     out = tmp_path / "full.h5"
-    result = catenary_with_file_size_limit(
-        RECORD_LIMIT_BYTES,
+    result = catenary_limited(
+        file_size_limit(RECORD_LIMIT_BYTES),
         "record", out, "--source", "simulator", "--source-option", "length_m=120",
         "--block-scans", str(BLOCK_SCANS),
     )  # fmt: skip
@@ -51,8 +58,16 @@ def test_a_recording_that_fills_the_disk_keeps_its_complete_blocks(
 def test_process_that_cannot_write_its_samples_leaves_nothing(
     run: SmallRun, engine: Engine, database_url: str, isolated_environment: Path
 ) -> None:
-    result = catenary_with_file_size_limit(
-        40_000, "--db", database_url, "process", run.run, "--rig", run.rig, "--masts", run.masts
+    result = catenary_limited(
+        file_size_limit(40_000),
+        "--db",
+        database_url,
+        "process",
+        run.run,
+        "--rig",
+        run.rig,
+        "--masts",
+        run.masts,
     )
     assert_refused(result, str(isolated_environment / "samples"), "cannot write samples")
     assert not any(row_counts(engine).values())
@@ -60,3 +75,20 @@ def test_process_that_cannot_write_its_samples_leaves_nothing(
     assert_succeeded(
         catenary("--db", database_url, "process", run.run, "--rig", run.rig, "--masts", run.masts)
     )
+
+
+def test_process_that_cannot_grow_its_sqlite_database_leaves_nothing(
+    run: SmallRun, tmp_path: Path, isolated_environment: Path
+) -> None:
+    database = tmp_path / "catenary.sqlite"
+    url = f"sqlite:///{database}"
+    assert_succeeded(catenary("--db", url, "db", "upgrade"))
+    engine = make_engine(url)
+    before = row_counts(engine)
+    process = ["--db", url, "process", run.run, "--rig", run.rig, "--masts", run.masts]
+    result = catenary_limited(file_size_limit(database.stat().st_size), *process)
+    assert_refused(result, f"database {database} cannot be written", "disk full")
+    assert row_counts(engine) == before
+    engine.dispose()
+    assert not list((isolated_environment / "samples").iterdir())
+    assert_succeeded(catenary(*process))
