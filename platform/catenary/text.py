@@ -17,7 +17,10 @@ from typing import Any
 
 from catenary.errors import UserError
 
-_CONTROL = re.compile("[\x00-\x1f\x7f-\x9f]")
+CONTROL_PATTERN = r"[\x00-\x1f\x7f-\x9f]"
+"""A control character (C0 with CR, LF and ESC, DEL, C1), as a regular expression that Python and
+RE2 (pyarrow) read alike."""
+_CONTROL = re.compile(CONTROL_PATTERN)
 
 
 def printable(text: str) -> str:

@@ -27,7 +27,7 @@ import pyarrow.parquet as pq
 from catenary.config import Settings
 from catenary.errors import FormatError, UserError
 from catenary.measurement.compare import RunProfile
-from catenary.measurement.spreadsheet import neutralise_formulas
+from catenary.measurement.spreadsheet import for_people
 from catenary.storage.models import Run
 
 __all__ = [
@@ -165,8 +165,9 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
     """Write tables to ``output`` as CSV or Parquet (by its suffix); returns the rows written.
 
     Written to a temporary file beside ``output`` and renamed at the end: an interrupted
-    export leaves no partial file. CSV is for people: its text cells that a spreadsheet would
-    evaluate are neutralised (``neutralise_formulas``).
+    export leaves no partial file. CSV is for people: numbers rounded to what they mean, text
+    cells that a spreadsheet would evaluate neutralised, control characters escaped
+    (``for_people``).
     """
     suffix = output.suffix.lower()
     if suffix not in (".csv", ".parquet"):
@@ -182,7 +183,7 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
         else:
             with pa_csv.CSVWriter(partial, schema) as writer:
                 for table in batches:
-                    writer.write_table(neutralise_formulas(table))
+                    writer.write_table(for_people(table))
                     rows += table.num_rows
         partial.replace(output)
     except BaseException:
