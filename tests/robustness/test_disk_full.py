@@ -92,3 +92,19 @@ def test_process_that_cannot_grow_its_sqlite_database_leaves_nothing(
     engine.dispose()
     assert not list((isolated_environment / "samples").iterdir())
     assert_succeeded(catenary(*process))
+
+
+def test_an_export_that_fills_the_disk_leaves_no_partial_file(
+    run: SmallRun, tmp_path: Path
+) -> None:
+    url = f"sqlite:///{tmp_path / 'catenary.sqlite'}"
+    assert_succeeded(catenary("--db", url, "db", "upgrade"))
+    assert_succeeded(
+        catenary("--db", url, "process", run.run, "--rig", run.rig, "--masts", run.masts)
+    )
+    out = tmp_path / "exports" / "samples.csv"
+    out.parent.mkdir()
+    export = ["--db", url, "export", "1", "--what", "samples", "-o", out]
+    assert_refused(catenary_limited(file_size_limit(20_000), *export), str(out), "cannot write")
+    assert not list(out.parent.iterdir())
+    assert_succeeded(catenary(*export))

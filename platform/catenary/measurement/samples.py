@@ -76,6 +76,11 @@ SAMPLES_SCHEMA = pa.schema(
 ROW_GROUP_ROWS = 16_384
 
 
+def _detail(exc: OSError) -> str:
+    """An operating system error's message on one line."""
+    return " ".join(str(exc).split())
+
+
 class SampleWriter:
     """Writes sample rows to a Parquet file in row groups of ``ROW_GROUP_ROWS``.
 
@@ -98,8 +103,7 @@ class SampleWriter:
         try:
             yield
         except OSError as exc:
-            detail = " ".join(str(exc).split())
-            raise UserError(f"{self.path.parent}: cannot write samples ({detail})") from None
+            raise UserError(f"{self.path.parent}: cannot write samples ({_detail(exc)})") from None
 
     def write(self, columns: Mapping[str, Any]) -> None:
         """Append rows: every column of the schema as an array ``(m,)``."""
@@ -165,7 +169,8 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
     """Write tables to ``output`` as CSV or Parquet (by its suffix); returns the rows written.
 
     Written to a temporary file beside ``output`` and renamed at the end: an interrupted
-    export leaves no partial file. CSV is for people: numbers rounded to what they mean, text
+    export leaves no partial file; a write that fails (a full disk) is a ``UserError`` naming
+    ``output``. CSV is for people: numbers rounded to what they mean, text
     cells that a spreadsheet would evaluate neutralised, control characters escaped
     (``for_people``).
     """
@@ -186,8 +191,10 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
                     writer.write_table(for_people(table))
                     rows += table.num_rows
         partial.replace(output)
-    except BaseException:
+    except BaseException as exc:
         partial.unlink(missing_ok=True)
+        if isinstance(exc, OSError):  # a full disk, a folder that may not be written
+            raise UserError(f"{output}: cannot write ({_detail(exc)})") from None
         raise
     return rows
 
