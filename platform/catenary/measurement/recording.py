@@ -100,7 +100,6 @@ class DiskFull(UserError):
     def __init__(self, path: Path, scans: int) -> None:
         kept = f"kept {scans} complete scans" if scans else "nothing recorded"
         super().__init__(f"disk full writing {path} after {scans} scans: {kept}")
-        self.scans = scans
 
 
 def _room_bytes(path: Path) -> int:
@@ -124,7 +123,8 @@ class _Room:
 
     def fits(self, block: ScanBlock, n: int) -> bool:
         lines = sum(camera.lines[:n].nbytes for camera in block.cameras.values())
-        need = 2 * max(self._growth, lines + 16 * n) + CLOSE_MARGIN_BYTES
+        # + position and time, and a vehicle sample (time and three sensors) per scan at most
+        need = 2 * max(self._growth, lines + 48 * n) + CLOSE_MARGIN_BYTES
         return _room_bytes(self._path) >= need
 
     def written(self) -> None:
