@@ -22,6 +22,13 @@ MAINTENANCE_KINDS = ("wire_replaced", "reinforced", "spliced", "inspected", "adj
 REPAIR_KINDS = ("wire_replaced", "reinforced", "spliced")
 """Kinds of action that renew the worn profile: they resolve alerts and restart histories."""
 
+CODE_LENGTH = 32
+"""Characters of a code in the database: line, track, mast, anchor section, wire type."""
+NAME_LENGTH = 200
+"""Characters of a name in the database: vehicles, calibrations, people, rules, notifiers."""
+PATH_LENGTH = 1024
+"""Characters of a file's path in the database."""
+
 
 @dataclass(frozen=True)
 class VehicleGeometry:

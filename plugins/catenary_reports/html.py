@@ -8,6 +8,8 @@ from collections.abc import Iterable, Sequence
 from datetime import datetime
 from pathlib import Path
 
+from catenary.text import printable
+
 __all__ = [
     "Cell",
     "escape",
@@ -22,7 +24,13 @@ __all__ = [
     "write_text",
 ]
 
-escape = html.escape
+
+def escape(text: str) -> str:
+    """``text`` for HTML: its control characters escaped as on the terminal
+    (``catenary.text.printable``: a name stored before they were refused), then ``&``, ``<``,
+    ``>`` and quotes."""
+    return html.escape(printable(text))
+
 
 CSS = """
 :root { --ink: #1d2430; --muted: #5b6675; --line: #d5dae1; --band: #f4f6f9; }
@@ -76,7 +84,7 @@ class Cell:
         wide: bool = False,
         markup: str | None = None,
     ):
-        self.html = markup if markup is not None else html.escape(text)
+        self.html = markup if markup is not None else escape(text)
         self.css = "n" if numeric else "k" if keep else "w" if wide else ""
 
 
@@ -94,7 +102,7 @@ def stamp(moment: datetime | None) -> str:
 
 def tag(level: str) -> str:
     """A coloured badge for an alert level."""
-    return f'<span class="tag {html.escape(level)}">{html.escape(level)}</span>'
+    return f'<span class="tag {escape(level)}">{escape(level)}</span>'
 
 
 def table(
@@ -114,29 +122,29 @@ def table(
         for cell in row:
             c = cell if isinstance(cell, Cell) else Cell(cell)
             cells.append(f'<td class="{c.css}">{c.html}</td>' if c.css else f"<td>{c.html}</td>")
-        attribute = f' class="{html.escape(css)}"' if css else ""
+        attribute = f' class="{escape(css)}"' if css else ""
         body.append(f"<tr{attribute}>{''.join(cells)}</tr>")
     if not body:
-        return f'<p class="note">{html.escape(empty)}</p>'
-    ident = f' id="{html.escape(table_id)}"' if table_id else ""
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in headers)
+        return f'<p class="note">{escape(empty)}</p>'
+    ident = f' id="{escape(table_id)}"' if table_id else ""
+    head = "".join(f"<th>{escape(h)}</th>" for h in headers)
     return f"<table{ident}><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
 
 
 def facts(pairs: Iterable[tuple[str, str]], table_id: str = "facts") -> str:
     """A two-column table of labelled facts (plain text)."""
-    rows = "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in pairs)
-    return f'<table class="facts" id="{html.escape(table_id)}"><tbody>{rows}</tbody></table>'
+    rows = "".join(f"<tr><th>{escape(k)}</th><td>{escape(v)}</td></tr>" for k, v in pairs)
+    return f'<table class="facts" id="{escape(table_id)}"><tbody>{rows}</tbody></table>'
 
 
 def section(title: str, *parts: str, section_id: str | None = None) -> str:
     """A titled section of already-built HTML parts."""
-    ident = f' id="{html.escape(section_id)}"' if section_id else ""
-    return f"<section{ident}><h2>{html.escape(title)}</h2>{''.join(parts)}</section>"
+    ident = f' id="{escape(section_id)}"' if section_id else ""
+    return f"<section{ident}><h2>{escape(title)}</h2>{''.join(parts)}</section>"
 
 
 def note(text: str) -> str:
-    return f'<p class="note">{html.escape(text)}</p>'
+    return f'<p class="note">{escape(text)}</p>'
 
 
 def page(title: str, subtitle: str, sections: Iterable[str]) -> str:
@@ -145,8 +153,8 @@ def page(title: str, subtitle: str, sections: Iterable[str]) -> str:
         "<!DOCTYPE html>\n"
         '<html lang="en"><head><meta charset="utf-8">'
         '<meta name="viewport" content="width=device-width, initial-scale=1">'
-        f"<title>{html.escape(title)}</title><style>{CSS}</style></head>"
-        f"<body><header><h1>{html.escape(title)}</h1><p>{html.escape(subtitle)}</p></header>"
+        f"<title>{escape(title)}</title><style>{CSS}</style></head>"
+        f"<body><header><h1>{escape(title)}</h1><p>{escape(subtitle)}</p></header>"
         f"<main>{''.join(sections)}</main></body></html>\n"
     )
 

@@ -60,7 +60,8 @@ EVENT_SCHEMA = pa.schema(
         ("wire", pa.int64()),
         ("wire_type", pa.string()),
         ("measure", pa.string()),
-        ("value", pa.float64()),
+        # every measure is in mm: its decimals in CSV (catenary.measurement.spreadsheet)
+        pa.field("value", pa.float64(), metadata={"unit": "mm"}),
         ("unit", pa.string()),
         ("at_m", pa.float64()),
         ("run_id", pa.int64()),

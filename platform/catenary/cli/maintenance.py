@@ -13,7 +13,13 @@ from typing import TYPE_CHECKING
 import click
 
 from catenary.cli.app import app_of
-from catenary.domain import ALERT_STATUSES, MAINTENANCE_KINDS, REPAIR_KINDS
+from catenary.domain import (
+    ALERT_STATUSES,
+    CODE_LENGTH,
+    MAINTENANCE_KINDS,
+    NAME_LENGTH,
+    REPAIR_KINDS,
+)
 from catenary.errors import UserError
 from catenary.limits import LEVELS, LimitPolicy, choose_policy
 from catenary.plugins import database_option
@@ -144,7 +150,9 @@ def _what(alert: Alert) -> str:
     show_default=True,
     help="active: open and acknowledged.",
 )
-@click.option("--line", metavar="L", help="Only this line.", callback=identifier_option)
+@click.option(
+    "--line", metavar="L", help="Only this line.", callback=identifier_option(CODE_LENGTH)
+)
 @click.option(
     "--level", "levels", multiple=True, type=click.Choice(LEVELS), help="Only these levels."
 )
@@ -201,7 +209,7 @@ def _ids(run_ids: list[int], shown: int = 10) -> str:
     required=True,
     metavar="NAME",
     help="Who acknowledges it.",
-    callback=identifier_option,
+    callback=identifier_option(NAME_LENGTH),
 )
 @database_option
 @click.pass_context
@@ -218,7 +226,12 @@ def ack_command(ctx: click.Context, alert_id: int, by: str) -> None:
 @alerts.command("resolve")
 @click.argument("alert_id", metavar="ID", type=int)
 @click.option(
-    "--by", "by", required=True, metavar="NAME", help="Who resolves it.", callback=identifier_option
+    "--by",
+    "by",
+    required=True,
+    metavar="NAME",
+    help="Who resolves it.",
+    callback=identifier_option(NAME_LENGTH),
 )
 @click.option("--note", help="Why (kept in the alert's details).")
 @database_option
@@ -278,10 +291,28 @@ def _moment(text: str | None) -> datetime:
 
 
 @maintenance.command("record")
-@click.option("--line", required=True, metavar="L", help="Line code.", callback=identifier_option)
-@click.option("--track", required=True, metavar="T", help="Track code.", callback=identifier_option)
-@click.option("--from-mast", metavar="M1", help="First mast of the stretch.")
-@click.option("--to-mast", metavar="M2", help="Last mast of the stretch.")
+@click.option(
+    "--line", required=True, metavar="L", help="Line code.", callback=identifier_option(CODE_LENGTH)
+)
+@click.option(
+    "--track",
+    required=True,
+    metavar="T",
+    help="Track code.",
+    callback=identifier_option(CODE_LENGTH),
+)
+@click.option(
+    "--from-mast",
+    metavar="M1",
+    help="First mast of the stretch.",
+    callback=identifier_option(CODE_LENGTH),
+)
+@click.option(
+    "--to-mast",
+    metavar="M2",
+    help="Last mast of the stretch.",
+    callback=identifier_option(CODE_LENGTH),
+)
 @click.option("--from-m", type=float, metavar="X", help="Start chainage [m] (without masts).")
 @click.option("--to-m", type=float, metavar="Y", help="End chainage [m].")
 @click.option(
@@ -297,7 +328,7 @@ def _moment(text: str | None) -> datetime:
     required=True,
     metavar="NAME",
     help="Who did or records the work.",
-    callback=identifier_option,
+    callback=identifier_option(NAME_LENGTH),
 )
 @click.option("--wire", type=int, metavar="N", help="Wire position in the spans (default: all).")
 @click.option("--at", "at", metavar="ISO8601", help="When the work was done (default: now; UTC).")

@@ -222,7 +222,11 @@ def record(
         if total:
             bar = stack.enter_context(
                 click.progressbar(
-                    length=total, label=f"recording {out.name}", show_pos=True, file=sys.stderr
+                    length=total,
+                    label=f"recording {out.name}",
+                    show_pos=True,
+                    file=sys.stderr,
+                    hidden=not sys.stderr.isatty(),  # no bar in logs
                 )
             )
             progress = bar.update

@@ -11,6 +11,7 @@ from pathlib import Path
 import click
 
 from catenary.cli.app import app_of
+from catenary.domain import CODE_LENGTH
 from catenary.errors import UserError
 from catenary.plugins import PluginRegistry, database_option
 from catenary.text import identifier_option
@@ -42,9 +43,12 @@ def _list(registry: PluginRegistry) -> None:
 @click.argument("runs", nargs=-1, metavar="[RUN]...")
 @click.option("--run", "more_runs", multiple=True, metavar="RUN", help="A run id or 'latest'.")
 @click.option("--latest", is_flag=True, help="The last processed run (as RUN 'latest').")
-@click.option("--line", metavar="CODE", help="Line code.", callback=identifier_option)
+@click.option("--line", metavar="CODE", help="Line code.", callback=identifier_option(CODE_LENGTH))
 @click.option(
-    "--track", metavar="CODE", help="Track code (with --line).", callback=identifier_option
+    "--track",
+    metavar="CODE",
+    help="Track code (with --line).",
+    callback=identifier_option(CODE_LENGTH),
 )
 @click.option(
     "--policy",

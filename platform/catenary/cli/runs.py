@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from catenary.cli.app import INTERRUPTED_EXIT_CODE, app_of
+from catenary.domain import CODE_LENGTH
 from catenary.errors import UserError
 from catenary.plugins import database_option
 from catenary.text import identifier_option, printable
@@ -36,8 +37,12 @@ __all__ = ["compare", "export", "process"]
     help="Mast register CSV: spans cut at its masts, chainage aligned to them.",
 )
 @click.option("--wire-type", help="Wire type of the whole run (default: the register's).")
-@click.option("--line", help="Line code (default: the run file's).", callback=identifier_option)
-@click.option("--track", help="Track code (default: the run file's).", callback=identifier_option)
+@click.option(
+    "--line", help="Line code (default: the run file's).", callback=identifier_option(CODE_LENGTH)
+)
+@click.option(
+    "--track", help="Track code (default: the run file's).", callback=identifier_option(CODE_LENGTH)
+)
 @click.option(
     "--processor",
     default="linescan-stereo",

@@ -21,15 +21,16 @@ from pathlib import Path
 
 import numpy as np
 
-from catenary.domain import TrackRegister
+from catenary.domain import CODE_LENGTH, TrackRegister
 from catenary.errors import FormatError, UserError
-from catenary.text import control_character_problem
+from catenary.text import identifier_problem
 
 __all__ = ["REQUIRED_COLUMNS", "MastRegister", "read_register"]
 
 REQUIRED_COLUMNS = ("line", "track", "mast", "chainage_m", "wire_type")
-IDENTIFIER_COLUMNS = ("line", "track", "mast", "anchor_section")
-"""Columns holding identifiers: printable text, no control characters (FORMATS.md)."""
+IDENTIFIER_COLUMNS = ("line", "track", "mast", "anchor_section", "wire_type")
+"""Columns holding codes: printable text, no control characters (FORMATS.md), at most
+``CODE_LENGTH`` characters (the database's)."""
 
 
 @dataclass(frozen=True)
@@ -121,7 +122,7 @@ def read_register(path: str | Path, wire_types: Iterable[str] | None = None) -> 
                     if not values.get(field):
                         raise FormatError(file, f"row {number}: {field} is empty")
                 for field in IDENTIFIER_COLUMNS:
-                    problem = control_character_problem(field, values.get(field, ""))
+                    problem = identifier_problem(field, values.get(field, ""), CODE_LENGTH)
                     if problem is not None:
                         raise FormatError(file, f"row {number}: {problem}")
                 if known is not None and values["wire_type"] not in known:

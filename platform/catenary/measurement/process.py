@@ -60,7 +60,15 @@ from sqlalchemy import Engine, select
 from sqlalchemy.exc import IntegrityError
 
 from catenary.config import Settings
-from catenary.domain import RunHeader, TrackRegister, VehicleGeometry, WireObservations
+from catenary.domain import (
+    CODE_LENGTH,
+    NAME_LENGTH,
+    PATH_LENGTH,
+    RunHeader,
+    TrackRegister,
+    VehicleGeometry,
+    WireObservations,
+)
 from catenary.errors import UserError
 from catenary.measurement.chain import MeasurementChain, TrackSamples
 from catenary.measurement.chainage import ChainageAlignment, TurningPointFinder, align_to_register
@@ -73,6 +81,7 @@ from catenary.plugins import BlockProcessor, PluginRegistry
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Run, SpanMeasurement
 from catenary.storage.runs import find_stored_run, store_run
+from catenary.text import length_problem
 from catenary.wiretype import WireType
 
 __all__ = [
@@ -242,10 +251,34 @@ def _line_and_track(
             f"{request.run_path}: the run names no track (root attribute 'track' is empty): "
             "give --track"
         )
+    for field, value, given in (("line", line, request.line), ("track", track, request.track)):
+        where = f"--{field}" if given else f"{request.run_path}: root attribute {field!r}"
+        problem = length_problem(where, value, CODE_LENGTH)
+        if problem is not None:
+            raise UserError(problem if given else f"{problem}: give --{field}")
     return line, track
 
 
+def _check_names(request: ProcessRequest) -> None:
+    """The rig calibration's name (its file's stem) and the run file's path fit their columns."""
+    for problem in (
+        length_problem(
+            f"{request.rig_path}: the rig calibration's name (the file name without .toml)",
+            request.rig_path.stem,
+            NAME_LENGTH,
+        ),
+        length_problem(
+            f"{request.run_path}: the run file's full path",
+            str(request.run_path.resolve()),
+            PATH_LENGTH,
+        ),
+    ):
+        if problem is not None:
+            raise UserError(problem)
+
+
 def _check_inputs(request: ProcessRequest, settings: Settings, registry: PluginRegistry) -> _Inputs:
+    _check_names(request)
     with open_run(request.run_path) as run:
         header = run.header
     if header.scans == 0:

@@ -32,10 +32,22 @@ a block is being written, it lets that block finish and stops after it, so the f
 holds half a block. Either way the blocks written so far are kept, the vehicle samples up to
 the last scan are written, and the file is closed with its completion marker for the scans it
 holds; the command prints one line with the number of scans kept and exits with status 130
-(the shell's convention for Ctrl-C). An error (a source failing, bad data from a source, a
-full disk) closes the file *without* the marker (it reads as interrupted) and is reported in
-one line saying how many scans were kept. A run file with no scan is removed (a source that
-gives no scan at all is an error).
+(the shell's convention for Ctrl-C). An error (a source failing, bad data from a source) closes
+the file *without* the marker (it reads as interrupted) and is reported in one line saying how
+many scans were kept. A run file with no scan is removed (a source that gives no scan at all
+is an error).
+
+A full disk
+-----------
+HDF5 cannot close a file whose writes failed: its metadata on disk would then claim what the
+file does not hold. So the recorder never lets a write fail for want of room: each block is
+flushed to the file, and before writing the next one it checks that the file may grow by
+twice the larger of that block's bytes and the last block's growth, plus
+:data:`CLOSE_MARGIN_BYTES` for closing (the room is the file system's free space and the
+process's file size limit, ``RLIMIT_FSIZE``). When it may not, the recording stops there like
+Ctrl-C: the file is closed with its marker for the complete blocks it holds, and a
+:class:`DiskFull` error says so. A write that fails all the same (another process filled the
+disk in between) is an error as above, and the file may then be unreadable.
 
 Configuration
 -------------
@@ -48,6 +60,8 @@ values (``20``, ``1.5``, ``true``, ``{a = 1}``), else as plain strings (``can0``
 
 from __future__ import annotations
 
+import os
+import resource
 import signal
 import threading
 from collections.abc import Callable, Iterator
@@ -66,13 +80,57 @@ from catenary.plugins.manager import plugin_errors
 from catenary.plugins.types import ScanStream, VehicleStream
 
 __all__ = [
+    "CLOSE_MARGIN_BYTES",
     "VEHICLE_MARGIN_S",
+    "DiskFull",
     "Recording",
     "record_run",
 ]
 
 VEHICLE_MARGIN_S: Final = 0.5
 """Vehicle samples are written up to this long after the last scan written [s]."""
+CLOSE_MARGIN_BYTES: Final = 4 << 20
+"""Room kept for closing a run file (its last vehicle samples, marker and metadata) [bytes]."""
+
+
+class DiskFull(UserError):
+    """The disk (or the file size limit) has no room for the next block: the run file was
+    closed with its marker for the complete blocks it holds (none: it was removed)."""
+
+    def __init__(self, path: Path, scans: int) -> None:
+        kept = f"kept {scans} complete scans" if scans else "nothing recorded"
+        super().__init__(f"disk full writing {path} after {scans} scans: {kept}")
+
+
+def _room_bytes(path: Path) -> int:
+    """How many bytes the file ``path`` may still grow by: the free space of its file system
+    (for this user) and the process's file size limit."""
+    stat = os.statvfs(path)
+    room = stat.f_bavail * stat.f_frsize
+    limit, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    if limit != resource.RLIM_INFINITY:
+        room = min(room, limit - path.stat().st_size)
+    return room
+
+
+class _Room:
+    """Whether the next block fits (module docstring, "A full disk")."""
+
+    def __init__(self, path: Path) -> None:
+        self._path = path
+        self._size = path.stat().st_size
+        self._growth = 0
+
+    def fits(self, block: ScanBlock, n: int) -> bool:
+        lines = sum(camera.lines[:n].nbytes for camera in block.cameras.values())
+        # + position and time, and a vehicle sample (time and three sensors) per scan at most
+        need = 2 * max(self._growth, lines + 48 * n) + CLOSE_MARGIN_BYTES
+        return _room_bytes(self._path) >= need
+
+    def written(self) -> None:
+        """Note the file's growth by the block just written and flushed."""
+        size = self._path.stat().st_size
+        self._growth, self._size = size - self._size, size
 
 
 @dataclass(frozen=True)
@@ -251,7 +309,7 @@ def record_run(
                 raise UserError(f"{scan_source}: invalid run header: {exc}") from None
         samples = _VehicleWriter(writer, vehicle_source if vehicle is not None else scan_source)
         try:
-            _stream_blocks(
+            full = _stream_blocks(
                 writer,
                 samples,
                 guard,
@@ -277,8 +335,10 @@ def record_run(
             raise
     if writer.scans == 0:  # nothing to keep: leave no empty run behind
         path.unlink(missing_ok=True)
-        if not guard.requested:
-            raise UserError(f"{scan_source} gave no scans: nothing recorded")
+    if full:
+        raise DiskFull(path, writer.scans)
+    if writer.scans == 0 and not guard.requested:
+        raise UserError(f"{scan_source} gave no scans: nothing recorded")
     return Recording(path, writer.scans, samples.samples, samples.flagged, guard.requested)
 
 
@@ -293,11 +353,14 @@ def _stream_blocks(
     progress: Callable[[int], None] | None,
     scan_source: str,
     vehicle_source: str,
-) -> None:
-    """The recording loop of :func:`record_run`; closes the writer with its marker at the end
-    or on Ctrl-C (``guard.requested``), raises on errors."""
+) -> bool:
+    """The recording loop of :func:`record_run`; closes the writer with its marker at the end,
+    on Ctrl-C (``guard.requested``) or when the next block does not fit (then returns True),
+    raises on errors."""
     last_time_s: float | None = None
     blocks: Iterator[ScanBlock] | None = None
+    room = _Room(writer.path)
+    full = False
     try:
         with plugin_errors(scan_source):
             blocks = iter(scans.blocks(block_scans))
@@ -309,6 +372,9 @@ def _stream_blocks(
             n = block.scans if max_scans is None else min(block.scans, max_scans - writer.scans)
             if n == 0:
                 continue
+            if not room.fits(block, n):
+                full = True
+                break
             with guard.deferred():  # Ctrl-C here only sets guard.requested
                 _append_scans(writer, block, n, scan_source)
                 last_time_s = float(block.time_s[n - 1])
@@ -318,6 +384,8 @@ def _stream_blocks(
                     with plugin_errors(vehicle_source):
                         for part in vehicle.vehicle_samples(last_time_s + VEHICLE_MARGIN_S):
                             samples.push(part)
+                writer.flush()
+                room.written()
             if progress is not None:
                 progress(n)
     except KeyboardInterrupt:
@@ -332,3 +400,4 @@ def _stream_blocks(
                 for part in vehicle.vehicle_samples(last_time_s + VEHICLE_MARGIN_S, final=True):
                     samples.push(part)
         writer.close()
+    return full

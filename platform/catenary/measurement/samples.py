@@ -15,6 +15,7 @@ read back in row groups, so neither side holds a whole run in memory.
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
 
@@ -26,7 +27,7 @@ import pyarrow.parquet as pq
 from catenary.config import Settings
 from catenary.errors import FormatError, UserError
 from catenary.measurement.compare import RunProfile
-from catenary.measurement.spreadsheet import neutralise_formulas
+from catenary.measurement.spreadsheet import for_people
 from catenary.storage.models import Run
 
 __all__ = [
@@ -75,11 +76,17 @@ SAMPLES_SCHEMA = pa.schema(
 ROW_GROUP_ROWS = 16_384
 
 
+def _detail(exc: OSError) -> str:
+    """An operating system error's message on one line."""
+    return " ".join(str(exc).split())
+
+
 class SampleWriter:
     """Writes sample rows to a Parquet file in row groups of ``ROW_GROUP_ROWS``.
 
     ``schema`` is :data:`SAMPLES_SCHEMA` unless given (the pipeline's intermediate file has
-    its own). Use as a context manager; :meth:`abort` removes the file.
+    its own). Use as a context manager; :meth:`abort` removes the file. A write that fails (a
+    full disk) is a ``UserError`` naming the folder.
     """
 
     def __init__(self, path: Path, schema: pa.Schema = SAMPLES_SCHEMA) -> None:
@@ -88,7 +95,15 @@ class SampleWriter:
         self.rows = 0
         self._parts: list[pa.Table] = []
         self._buffered = 0
-        self._writer = pq.ParquetWriter(path, schema)
+        with self._writing():
+            self._writer = pq.ParquetWriter(path, schema)
+
+    @contextmanager
+    def _writing(self) -> Iterator[None]:
+        try:
+            yield
+        except OSError as exc:
+            raise UserError(f"{self.path.parent}: cannot write samples ({_detail(exc)})") from None
 
     def write(self, columns: Mapping[str, Any]) -> None:
         """Append rows: every column of the schema as an array ``(m,)``."""
@@ -103,15 +118,19 @@ class SampleWriter:
 
     def _flush(self) -> None:
         if self._parts:
-            self._writer.write_table(pa.concat_tables(self._parts), ROW_GROUP_ROWS)
+            with self._writing():
+                self._writer.write_table(pa.concat_tables(self._parts), ROW_GROUP_ROWS)
             self._parts, self._buffered = [], 0
 
     def close(self) -> None:
         self._flush()
-        self._writer.close()
+        with self._writing():
+            self._writer.close()
 
     def abort(self) -> None:
-        self._writer.close()
+        """Close and remove the file (removed all the same when closing fails: a full disk)."""
+        with suppress(OSError):
+            self._writer.close()
         self.path.unlink(missing_ok=True)
 
     def __enter__(self) -> SampleWriter:
@@ -150,8 +169,10 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
     """Write tables to ``output`` as CSV or Parquet (by its suffix); returns the rows written.
 
     Written to a temporary file beside ``output`` and renamed at the end: an interrupted
-    export leaves no partial file. CSV is for people: its text cells that a spreadsheet would
-    evaluate are neutralised (``neutralise_formulas``).
+    export leaves no partial file; a write that fails (a full disk) is a ``UserError`` naming
+    ``output``. CSV is for people: numbers rounded to what they mean, text
+    cells that a spreadsheet would evaluate neutralised, control characters escaped
+    (``for_people``).
     """
     suffix = output.suffix.lower()
     if suffix not in (".csv", ".parquet"):
@@ -167,11 +188,13 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
         else:
             with pa_csv.CSVWriter(partial, schema) as writer:
                 for table in batches:
-                    writer.write_table(neutralise_formulas(table))
+                    writer.write_table(for_people(table))
                     rows += table.num_rows
         partial.replace(output)
-    except BaseException:
+    except BaseException as exc:
         partial.unlink(missing_ok=True)
+        if isinstance(exc, OSError):  # a full disk, a folder that may not be written
+            raise UserError(f"{output}: cannot write ({_detail(exc)})") from None
         raise
     return rows
 

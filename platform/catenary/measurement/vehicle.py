@@ -32,8 +32,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from catenary.arrays import FloatArray
-from catenary.domain import VehicleGeometry
+from catenary.domain import NAME_LENGTH, VehicleGeometry
 from catenary.errors import FormatError, UserError
+from catenary.text import length_problem
 
 __all__ = [
     "load_vehicle_geometry",
@@ -173,6 +174,9 @@ def parse_vehicle_geometry(
     name = table.get("name", default_name)
     if not isinstance(name, str):
         raise FormatError(path, f"key {prefix}name must be a string, got {name!r}")
+    problem = length_problem(f"key {prefix}name", name, NAME_LENGTH)
+    if problem is not None:
+        raise FormatError(path, problem)
     values: dict[str, float] = {}
     for key in _NUMERIC_KEYS:
         if key not in table:

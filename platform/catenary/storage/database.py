@@ -17,7 +17,7 @@ from typing import Any
 
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.engine import URL, Connection, make_url
-from sqlalchemy.exc import ArgumentError, DBAPIError, NoSuchModuleError
+from sqlalchemy.exc import ArgumentError, DBAPIError, NoSuchModuleError, OperationalError
 from sqlalchemy.orm import Session
 
 from catenary.config import DEFAULT_CONNECT_TIMEOUT_S, Settings
@@ -29,6 +29,12 @@ SQLITE_BUSY_TIMEOUT_MS = 30_000
 #: The execution option that marks a connection's transactions as reading only (SQLite then
 #: begins them deferred; see ``_begin_sqlite_transaction``).
 READ_ONLY = "catenary_read_only"
+
+# SQLite's primary result codes of a file that cannot be written (the extended codes carry
+# them in their low byte): SQLITE_READONLY (the file or its folder), SQLITE_IOERR and
+# SQLITE_FULL (a full disk, a file size limit)
+_SQLITE_READONLY = 8
+_SQLITE_UNWRITABLE = {10, 13}
 
 # For a URL that does not parse: everything from the user's ":" to the last "@" (greedy, so a
 # password holding "@", "/" or "?" is masked whole).
@@ -222,8 +228,11 @@ def session_scope(engine: Engine, *, read_only: bool = False) -> Iterator[Sessio
     try:
         yield session
         session.commit()
-    except BaseException:
+    except BaseException as exc:
         session.rollback()
+        problem = _unwritable(engine, exc)
+        if problem is not None:
+            raise problem from None
         raise
     finally:
         session.close()
@@ -238,6 +247,25 @@ def require_exists(engine: Engine) -> None:
             f"database {mask_url(engine.url)} does not exist: run 'catenary db upgrade' to "
             "create it"
         )
+
+
+def _unwritable(engine: Engine, exc: BaseException) -> UserError | None:
+    """The one-line error for a SQLite file that cannot be written (read-only, its disk full),
+    else None."""
+    code = (
+        getattr(exc.orig, "sqlite_errorcode", None) if isinstance(exc, OperationalError) else None
+    )
+    if code is None:
+        return None
+    where = f"database {engine.url.database}"
+    if code & 0xFF == _SQLITE_READONLY:
+        return UserError(
+            f"{where} is read-only: {one_line(exc)} (writing needs write permission on the file "
+            "and its folder; commands that only read work)"
+        )
+    if code & 0xFF in _SQLITE_UNWRITABLE:
+        return UserError(f"{where} cannot be written: {one_line(exc)} (is its disk full?)")
+    return None
 
 
 def require_migrated(engine: Engine) -> None:

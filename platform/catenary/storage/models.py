@@ -45,6 +45,9 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, Mapper, mapped_column, relat
 from sqlalchemy.types import TypeDecorator
 
 from catenary.domain import ALERT_STATUSES, MAINTENANCE_KINDS
+from catenary.domain import CODE_LENGTH as CODE_LENGTH  # the column lengths, for callers here
+from catenary.domain import NAME_LENGTH as NAME_LENGTH
+from catenary.domain import PATH_LENGTH as PATH_LENGTH
 
 NAMING_CONVENTION: dict[str, str] = {
     "ix": "ix_%(table_name)s_%(column_0_N_name)s",
@@ -64,9 +67,6 @@ ALERT_LEVELS = ("plan", "urgent", "critical")  # catenary.limits.LEVELS
 ALERT_KINDS = ("threshold", "forecast")
 NOTIFICATION_STATUSES = ("pending", "sent", "failed")
 
-CODE_LENGTH = 32  # line, track, mast codes and wire type names
-NAME_LENGTH = 200  # names of lines, vehicles, calibrations, people, rules, notifiers
-PATH_LENGTH = 1024
 SHA256_LENGTH = 64
 
 
