@@ -11,6 +11,7 @@ from typing import TYPE_CHECKING
 import click
 
 from catenary.cli.app import app_of
+from catenary.domain import NAME_LENGTH
 from catenary.plugins import database_option
 from catenary.text import identifier_option, printable
 
@@ -112,7 +113,12 @@ def status_command(ctx: click.Context) -> None:
 
 
 @notify.command("requeue")
-@click.option("--channel", metavar="NAME", callback=identifier_option, help="Only this channel's.")
+@click.option(
+    "--channel",
+    metavar="NAME",
+    callback=identifier_option(NAME_LENGTH),
+    help="Only this channel's.",
+)
 @click.option(
     "--alert", "alert_id", type=click.IntRange(min=1), metavar="ID", help="Only this alert's."
 )
