@@ -7,9 +7,11 @@ from pathlib import Path
 import pytest
 import sqlalchemy as sa
 
+from catenary.config import Settings
 from catenary.errors import DatabaseNotMigrated, UserError
 from catenary.storage import migrate
 from catenary.storage.database import (
+    SQLITE_BUSY_TIMEOUT_MS,
     make_engine,
     mask_url,
     open_database,
@@ -156,3 +158,22 @@ def test_open_database_checks_the_migration(database_url: str) -> None:
         migrate.upgrade(engine)
     with open_database(database_url) as engine:
         assert migrate.current_revision(engine) == migrate.head_revision()
+
+
+@pytest.mark.parametrize("batch", [False, True])
+def test_the_statement_timeout_bounds_interactive_commands_only(
+    database_url: str, tmp_path: Path, batch: bool
+) -> None:
+    settings = Settings(database_url=database_url, data_dir=tmp_path, statement_timeout_s=1.5)
+    with (
+        open_database(settings, migrated=False, batch=batch) as engine,
+        engine.connect() as connection,
+    ):
+        if engine.dialect.name == "postgresql":
+            timeout = connection.exec_driver_sql("SHOW statement_timeout").scalar()
+            assert timeout == ("0" if batch else "1500ms")
+            # the URL's own options (the test's schema) are kept
+            assert "catenary_test_" in str(connection.exec_driver_sql("SHOW search_path").scalar())
+        else:  # SQLite: the wait for another writer's lock
+            timeout = connection.exec_driver_sql("PRAGMA busy_timeout").scalar()
+            assert timeout == (SQLITE_BUSY_TIMEOUT_MS if batch else 1500)

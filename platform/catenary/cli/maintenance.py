@@ -82,7 +82,7 @@ def evaluate_command(
     app = app_of(ctx)
     policy = _policy(app, policy_name, policy_file)
     horizon = horizon_days(app.settings)
-    with app.database() as engine:
+    with app.database(batch=everything) as engine:
         with session_scope(engine) as session:
             run_ids = None if run_reference is None else [find_run(session, run_reference).id]
             result = evaluate_alerts(

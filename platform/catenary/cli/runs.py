@@ -100,7 +100,7 @@ def process(
         )
         return
     try:
-        with open_database(settings) as engine:
+        with open_database(settings, batch=True) as engine:
             alerts = evaluate_stored_run(alerting, engine, settings, app.registry, result.run_id)
     except KeyboardInterrupt:  # the run is committed: say so, and what is left to do
         click.echo(

@@ -26,6 +26,7 @@ SIGTERM and SIGINT stop the service once the running jobs have finished.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import signal
 import threading
@@ -342,6 +343,8 @@ def serve(
 ) -> None:
     """Run the scheduler until SIGTERM or SIGINT: the body of ``catenary scheduler``."""
     config = scheduler_config(settings)
+    # jobs are batch work: no statement timeout, whatever database a job opens
+    settings = dataclasses.replace(settings, statement_timeout_s=None)
     with open_database(settings) as engine:
         context = JobContext(settings, registry, engine, config.timezone, clock)
         scheduler, store = make_scheduler(engine, config, context)

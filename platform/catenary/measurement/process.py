@@ -478,7 +478,7 @@ def process_run(
     inputs = _check_inputs(request, settings, registry)
     processor, geometry = _processor(request, registry, settings)
     rig_sha256 = hashlib.sha256(inputs.rig_text.encode("utf-8")).hexdigest()
-    with open_database(settings) as engine:
+    with open_database(settings, batch=True) as engine:
         with session_scope(engine, read_only=True) as session:
             stored = find_stored_run(session, inputs.source_sha256, geometry.name, rig_sha256)
             if stored is not None and not request.replace:

@@ -60,12 +60,14 @@ class CommandContext:
         self._settings = None
 
     @contextmanager
-    def database(self, *, migrated: bool = True) -> Iterator[Engine]:
+    def database(self, *, migrated: bool = True, batch: bool = False) -> Iterator[Engine]:
         """The invocation's database (an engine, disposed of on exit); ``migrated``: refuse, in
-        one line, a database whose schema is not at the head revision."""
+        one line, a database whose schema is not at the head revision; ``batch``: a batch
+        command, which the statement timeout (``[database] statement_timeout_s``) of
+        interactive commands does not bound."""
         from catenary.storage.database import open_database
 
-        with open_database(self.settings, migrated=migrated) as engine:
+        with open_database(self.settings, migrated=migrated, batch=batch) as engine:
             yield engine
 
 
