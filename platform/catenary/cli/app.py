@@ -10,7 +10,10 @@ traceback, with exit status 1; usage errors exit 2.
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
+import signal
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from types import FrameType
 from typing import Any
 
 import click
@@ -22,6 +25,33 @@ from catenary.wiretype import ProfileRangeError
 INTERRUPTED_EXIT_CODE = 130
 """Exit status of a command stopped by Ctrl-C after keeping what it had done (the shell's
 convention)."""
+TERMINATED_EXIT_CODE = 143
+"""Exit status of a command stopped by SIGTERM the same way (128 + 15)."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C raises ``KeyboardInterrupt`` (``terminated_as_ctrl_c``)."""
+
+
+@contextmanager
+def terminated_as_ctrl_c() -> Iterator[None]:
+    """Within the block, SIGTERM stops the command as Ctrl-C does (raising ``Terminated``):
+    what is committed is kept, scratch files are removed. Python's default ends the process
+    at once, running no clean-up."""
+
+    def terminate(signum: int, frame: FrameType | None) -> None:
+        raise Terminated
+
+    previous = signal.signal(signal.SIGTERM, terminate)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def interrupted_exit_code(interruption: KeyboardInterrupt) -> int:
+    """130 for Ctrl-C, 143 for SIGTERM."""
+    return TERMINATED_EXIT_CODE if isinstance(interruption, Terminated) else INTERRUPTED_EXIT_CODE
 
 
 def app_of(ctx: click.Context) -> CommandContext:

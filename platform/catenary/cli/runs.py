@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from catenary.cli.app import INTERRUPTED_EXIT_CODE, app_of
+from catenary.cli.app import app_of, interrupted_exit_code, terminated_as_ctrl_c
 from catenary.plugins import database_option
 from catenary.text import identifier_option, printable
 
@@ -59,7 +59,7 @@ def process(
 ) -> None:
     """Process a recorded run into per-span wear in the database."""
     from catenary.maintenance.alerts import evaluate_stored_run, run_alerting, run_alerts_lines
-    from catenary.measurement.process import ProcessRequest, process_run
+    from catenary.measurement.process import ProcessRequest, StoredThenInterrupted, process_run
     from catenary.storage.database import open_database
 
     app = app_of(ctx)
@@ -75,43 +75,63 @@ def process(
         replace=replace,
     )
     alerting = run_alerting(settings, app.registry)
-    with ExitStack() as stack:
-        bar: list[Any] = []
+    with terminated_as_ctrl_c():
+        try:
+            with ExitStack() as stack:
+                bar: list[Any] = []
 
-        def start(header: RunHeader) -> None:
-            bar.append(
-                stack.enter_context(
-                    click.progressbar(
-                        length=header.scans,
-                        label="processing",
-                        file=sys.stderr,
-                        hidden=not sys.stderr.isatty(),  # no bar in logs
+                def start(header: RunHeader) -> None:
+                    bar.append(
+                        stack.enter_context(
+                            click.progressbar(
+                                length=header.scans,
+                                label="processing",
+                                file=sys.stderr,
+                                hidden=not sys.stderr.isatty(),  # no bar in logs
+                            )
+                        )
                     )
-                )
-            )
 
-        result = process_run(
-            request, settings, app.registry, progress=lambda n: bar[0].update(n), on_start=start
-        )
-    if result.already_stored:
-        click.echo(
-            f"{run_path} is already stored with this rig calibration as run {result.run_id}: "
-            "nothing done (--replace processes it again)"
-        )
-        return
-    try:
-        with open_database(settings, batch=True) as engine:
-            alerts = evaluate_stored_run(alerting, engine, settings, app.registry, result.run_id)
-    except KeyboardInterrupt:  # the run is committed: say so, and what is left to do
-        click.echo(
-            f"interrupted: stored as run {result.run_id}, its alerts not evaluated "
-            f"(catenary alerts evaluate --run {result.run_id})",
-            err=True,
-        )
-        ctx.exit(INTERRUPTED_EXIT_CODE)
+                result = process_run(
+                    request,
+                    settings,
+                    app.registry,
+                    progress=lambda n: bar[0].update(n),
+                    on_start=start,
+                )
+        except StoredThenInterrupted as stopped:
+            _interrupted_once_stored(ctx, stopped.run_id, stopped.interruption)
+        except KeyboardInterrupt as interruption:
+            click.echo(f"interrupted: {run_path} not stored (nothing of it kept)", err=True)
+            ctx.exit(interrupted_exit_code(interruption))
+        if result.already_stored:
+            click.echo(
+                f"{run_path} is already stored with this rig calibration as run "
+                f"{result.run_id}: nothing done (--replace processes it again)"
+            )
+            return
+        try:
+            with open_database(settings, batch=True) as engine:
+                alerts = evaluate_stored_run(
+                    alerting, engine, settings, app.registry, result.run_id
+                )
+        except KeyboardInterrupt as interruption:
+            _interrupted_once_stored(ctx, result.run_id, interruption)
     for text in [*result.summary_lines(), *run_alerts_lines(alerts)]:
         click.echo(printable(text))
     click.echo(f"stored as run {result.run_id}")
+
+
+def _interrupted_once_stored(
+    ctx: click.Context, run_id: int, interruption: KeyboardInterrupt
+) -> None:
+    """Say that the run is stored and what is left to do, and exit as interrupted."""
+    click.echo(
+        f"interrupted: stored as run {run_id}, its alerts not evaluated "
+        f"(catenary alerts evaluate --run {run_id})",
+        err=True,
+    )
+    ctx.exit(interrupted_exit_code(interruption))
 
 
 @click.command("export")
