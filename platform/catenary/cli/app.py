@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import signal
+import sys
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from types import FrameType
@@ -30,23 +31,47 @@ TERMINATED_EXIT_CODE = 143
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM, raised where Ctrl-C raises ``KeyboardInterrupt`` (``terminated_as_ctrl_c``)."""
+    """SIGTERM, raised where Ctrl-C raises ``KeyboardInterrupt`` (``Interruptions``)."""
 
 
-@contextmanager
-def terminated_as_ctrl_c() -> Iterator[None]:
-    """Within the block, SIGTERM stops the command as Ctrl-C does (raising ``Terminated``):
-    what is committed is kept, scratch files are removed. Python's default ends the process
-    at once, running no clean-up."""
+class Interruptions:
+    """Ctrl-C and SIGTERM during a command (``handled()``): each raises where it lands
+    (``KeyboardInterrupt``, ``Terminated``: SIGTERM stops the command as Ctrl-C does, what is
+    committed kept, scratch files removed; Python's default would end the process at once,
+    cleaning nothing) and is kept in ``received``. One that lands where Python only prints
+    it (a weakref callback, a ``__del__``) is not printed, and is raised again by the
+    command's next ``check()``.
+    """
 
-    def terminate(signum: int, frame: FrameType | None) -> None:
-        raise Terminated
+    def __init__(self) -> None:
+        self.received: KeyboardInterrupt | None = None
 
-    previous = signal.signal(signal.SIGTERM, terminate)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    def check(self) -> None:
+        if self.received is not None:
+            raise self.received
+
+    @contextmanager
+    def handled(self) -> Iterator[None]:
+        def interrupt(signum: int, frame: FrameType | None) -> None:
+            self.received = Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+            raise self.received
+
+        def unraisable(unraisable: sys.UnraisableHookArgs) -> None:
+            if unraisable.exc_value is not self.received:
+                hook(unraisable)
+
+        hook = sys.unraisablehook
+        previous = {number: signal.signal(number, interrupt) for number in _INTERRUPTIONS}
+        sys.unraisablehook = unraisable
+        try:
+            yield
+        finally:
+            sys.unraisablehook = hook
+            for number, handler in previous.items():
+                signal.signal(number, handler)
+
+
+_INTERRUPTIONS = (signal.SIGINT, signal.SIGTERM)
 
 
 def interrupted_exit_code(interruption: KeyboardInterrupt) -> int:

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from catenary.cli.app import app_of, interrupted_exit_code, terminated_as_ctrl_c
+from catenary.cli.app import Interruptions, app_of, interrupted_exit_code
 from catenary.plugins import database_option
 from catenary.text import identifier_option, printable
 
@@ -75,7 +75,13 @@ def process(
         replace=replace,
     )
     alerting = run_alerting(settings, app.registry)
-    with terminated_as_ctrl_c():
+    interruptions = Interruptions()
+
+    def progress(scans: int) -> None:
+        interruptions.check()
+        bar[0].update(scans)
+
+    with interruptions.handled():
         try:
             with ExitStack() as stack:
                 bar: list[Any] = []
@@ -96,7 +102,7 @@ def process(
                     request,
                     settings,
                     app.registry,
-                    progress=lambda n: bar[0].update(n),
+                    progress=progress,
                     on_start=start,
                 )
         except StoredThenInterrupted as stopped:
@@ -104,6 +110,8 @@ def process(
         except KeyboardInterrupt as interruption:
             click.echo(f"interrupted: {run_path} not stored (nothing of it kept)", err=True)
             ctx.exit(interrupted_exit_code(interruption))
+        if interruptions.received is not None and not result.already_stored:
+            _interrupted_once_stored(ctx, result.run_id, interruptions.received)
         if result.already_stored:
             click.echo(
                 f"{run_path} is already stored with this rig calibration as run "
