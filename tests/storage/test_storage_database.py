@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sqlite3
+import time
 from pathlib import Path
 
 import pytest
@@ -12,10 +14,12 @@ from catenary.errors import DatabaseNotMigrated, UserError
 from catenary.storage import migrate
 from catenary.storage.database import (
     SQLITE_BUSY_TIMEOUT_MS,
+    DatabaseUnavailable,
     make_engine,
     mask_url,
     open_database,
     require_migrated,
+    session_scope,
 )
 
 UNREACHABLE = "postgresql+psycopg://fleet:s3cret@127.0.0.1:1/catenary"
@@ -177,3 +181,22 @@ def test_the_statement_timeout_bounds_interactive_commands_only(
         else:  # SQLite: the wait for another writer's lock
             timeout = connection.exec_driver_sql("PRAGMA busy_timeout").scalar()
             assert timeout == (SQLITE_BUSY_TIMEOUT_MS if batch else 1500)
+
+
+def test_a_sqlite_write_lock_not_granted_in_time_is_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "c.sqlite"
+    engine = make_engine(f"sqlite:///{path}", statement_timeout_s=0.2)
+    holder = sqlite3.connect(path, isolation_level=None)
+    holder.execute("BEGIN IMMEDIATE")
+    try:
+        start = time.monotonic()
+        with pytest.raises(DatabaseUnavailable) as caught, session_scope(engine) as session:
+            session.execute(sa.text("SELECT 1"))
+        assert time.monotonic() - start < 5
+    finally:
+        holder.rollback()
+        holder.close()
+        engine.dispose()
+    assert str(caught.value) == (
+        f"database sqlite:///{path} is locked by another writer: gave up after 0.2 s"
+    )

@@ -19,6 +19,7 @@ import math
 import os
 import re
 import socket
+import sqlite3
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -163,10 +164,11 @@ def _watch_statements(engine: Engine, limit_s: float) -> None:
 
 
 def _lost_connection(
-    where: str, statement_timeout_s: float | None, context: ExceptionContext
+    where: str, statement_timeout_s: float | None, busy_timeout_ms: int, context: ExceptionContext
 ) -> BaseException | None:
-    """The one-line ``DatabaseUnavailable`` for a connection lost or a statement timed out
-    while a command ran (``handle_error``); None leaves any other error as it is."""
+    """The one-line ``DatabaseUnavailable`` for a connection lost, a statement timed out or a
+    SQLite write lock not granted in time while a command ran (``handle_error``); None leaves
+    any other error as it is."""
     if context.is_pre_ping or context.connection is None:
         return None  # pre-ping reconnects; connect errors are reported by ``connected``
     connection = context.connection
@@ -174,15 +176,19 @@ def _lost_connection(
     if watchdog is not None:
         watchdog.disarm()
     orig = context.original_exception
-    if (watchdog is not None and watchdog.fired) or getattr(orig, "sqlstate", None) == (
-        _QUERY_CANCELED
-    ):
+    timed_out = getattr(orig, "sqlstate", None) == _QUERY_CANCELED
+    if statement_timeout_s is not None and (timed_out or (watchdog is not None and watchdog.fired)):
         return DatabaseUnavailable(
             f"database {where} did not answer within the statement timeout "
             f"({statement_timeout_s:g} s, [database] statement_timeout_s)"
         )
     if context.is_disconnect:
         return DatabaseUnavailable(f"lost the connection to database {where}: {one_line(orig)}")
+    if isinstance(orig, sqlite3.OperationalError) and "database is locked" in str(orig):
+        return DatabaseUnavailable(
+            f"database {where} is locked by another writer: gave up after "
+            f"{busy_timeout_ms / 1000:g} s"
+        )
     return None
 
 
@@ -270,7 +276,12 @@ def make_engine(
     except (ArgumentError, TypeError) as exc:
         raise UserError(f"invalid database URL {where}: {one_line(exc)}") from None
 
-    event.listen(engine, "handle_error", partial(_lost_connection, where, statement_timeout_s))
+    busy_ms = SQLITE_BUSY_TIMEOUT_MS
+    if statement_timeout_s is not None:
+        busy_ms = min(busy_ms, max(1, math.ceil(statement_timeout_s * 1000)))
+    event.listen(
+        engine, "handle_error", partial(_lost_connection, where, statement_timeout_s, busy_ms)
+    )
     if engine.dialect.name == "sqlite":
         if sqlite_file is not None:
             try:
@@ -279,9 +290,6 @@ def make_engine(
                 raise UserError(
                     f"cannot create the directory of database {where}: {exc.strerror}"
                 ) from None
-        busy_ms = SQLITE_BUSY_TIMEOUT_MS
-        if statement_timeout_s is not None:
-            busy_ms = min(busy_ms, max(1, math.ceil(statement_timeout_s * 1000)))
         event.listen(engine, "connect", partial(_configure_sqlite_connection, busy_ms))
         event.listen(engine, "begin", _begin_sqlite_transaction)
     elif engine.dialect.name == "postgresql" and statement_timeout_s is not None:
