@@ -77,9 +77,18 @@ def test_connect_timeout_defaults_to_10_s_and_is_configurable(tmp_path: Path) ->
     assert load_settings(config_path=config).connect_timeout_s == 2.5
 
 
+@pytest.mark.parametrize("key", ["connect_timeout_s", "statement_timeout_s"])
 @pytest.mark.parametrize("value", ["0", "-1", '"10"', "true", "inf"])
-def test_bad_connect_timeout_is_one_line(tmp_path: Path, value: str) -> None:
+def test_bad_timeout_is_one_line(tmp_path: Path, key: str, value: str) -> None:
     config = tmp_path / "c.toml"
-    config.write_text(f"[database]\nconnect_timeout_s = {value}\n")
-    with pytest.raises(UserError, match=r"c\.toml: database\.connect_timeout_s must be a positive"):
+    config.write_text(f"[database]\n{key} = {value}\n")
+    with pytest.raises(UserError, match=rf"c\.toml: database\.{key} must be a positive"):
         load_settings(config_path=config)
+
+
+def test_statement_timeout_is_off_by_default_and_configurable(tmp_path: Path) -> None:
+    config = tmp_path / "c.toml"
+    config.write_text("")
+    assert load_settings(config_path=config).statement_timeout_s is None
+    config.write_text("[database]\nstatement_timeout_s = 30\n")
+    assert load_settings(config_path=config).statement_timeout_s == 30.0

@@ -7,6 +7,8 @@ Precedence, highest first: command-line option, environment variable, config fil
 - database URL: ``--db URL``, ``$CATENARY_DATABASE_URL``, ``[database] url``, else a SQLite
   file ``catenary.sqlite`` in the data directory;
 - database connect timeout (PostgreSQL): ``[database] connect_timeout_s``, else 10 s;
+- statement timeout of interactive commands: ``[database] statement_timeout_s``, else none
+  (batch commands and scheduler jobs never have one; ``storage.database.make_engine``);
 - data directory (SQLite file, per-run sample files, reports): ``$CATENARY_DATA_DIR``,
   ``[paths] data_dir``, else the per-user data directory.
 
@@ -36,7 +38,7 @@ APP_NAME = "catenary"
 #: How long connecting to a database server may take before the command gives up, in seconds.
 DEFAULT_CONNECT_TIMEOUT_S = 10.0
 KNOWN_KEYS: dict[str, set[str]] = {
-    "database": {"url", "connect_timeout_s"},
+    "database": {"url", "connect_timeout_s", "statement_timeout_s"},
     "paths": {"data_dir"},
     "plugins": {"disabled"},
 }
@@ -67,6 +69,7 @@ class Settings:
     data_dir: Path
     config_path: Path | None = None
     connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S
+    statement_timeout_s: float | None = None
     disabled_plugins: tuple[str, ...] = ()
     sections: Mapping[str, Any] = field(default_factory=dict)
 
@@ -98,6 +101,15 @@ def read_config_file(path: Path) -> dict[str, Any]:
     return data
 
 
+def _seconds(config_path: Path | None, key: str, value: object) -> float:
+    """``value`` of ``[database] KEY``: a positive, finite number of seconds."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value < math.inf:
+        raise UserError(
+            f"{config_path}: database.{key} must be a positive number of seconds, not {value!r}"
+        )
+    return float(value)
+
+
 def load_settings(
     *,
     config_path: Path | None = None,
@@ -127,16 +139,17 @@ def load_settings(
     if not url:
         url = f"sqlite:///{data_dir / 'catenary.sqlite'}"
 
-    timeout = data.get("database", {}).get("connect_timeout_s", DEFAULT_CONNECT_TIMEOUT_S)
-    if (
-        isinstance(timeout, bool)
-        or not isinstance(timeout, int | float)
-        or not 0 < timeout < math.inf
-    ):
-        raise UserError(
-            f"{config_path}: database.connect_timeout_s must be a positive number of seconds, "
-            f"not {timeout!r}"
-        )
+    database = data.get("database", {})
+    timeout = _seconds(
+        config_path,
+        "connect_timeout_s",
+        database.get("connect_timeout_s", DEFAULT_CONNECT_TIMEOUT_S),
+    )
+    statement_timeout = (
+        _seconds(config_path, "statement_timeout_s", database["statement_timeout_s"])
+        if "statement_timeout_s" in database
+        else None
+    )
 
     disabled = data.get("plugins", {}).get("disabled", [])
     if not isinstance(disabled, list) or not all(isinstance(x, str) for x in disabled):
@@ -146,7 +159,8 @@ def load_settings(
         database_url=url,
         data_dir=data_dir,
         config_path=config_path,
-        connect_timeout_s=float(timeout),
+        connect_timeout_s=timeout,
+        statement_timeout_s=statement_timeout,
         disabled_plugins=tuple(disabled),
         sections={k: v for k, v in data.items() if k not in KNOWN_KEYS},
     )

@@ -12,6 +12,7 @@ from __future__ import annotations
 import csv
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -26,7 +27,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from click.testing import CliRunner, Result
-from sqlalchemy import Engine, create_engine, func, select
+from sqlalchemy import Engine, create_engine, event, func, select
 from sqlalchemy.orm import Session
 
 from catenary.cli import cli
@@ -564,3 +565,34 @@ def test_a_stationary_run_that_measured_a_wire_is_stored_with_a_warning(
         f"warning: run {still.run} covers 0.0 m: the vehicle did not move; no span measured\n"
     )
     assert stored(database) == (1, 0)
+
+
+@pytest.mark.slow
+def test_ctrl_c_as_the_run_commits_keeps_its_samples_file_and_says_it_is_stored(
+    simulated: Simulated, database: str, isolated_environment: Path
+) -> None:
+    """SIGINT sent the moment the storing transaction commits (from SQLAlchemy's after-commit
+    event, in this process): the run is stored, so its samples file stays, and the command
+    says so with exit 130."""
+
+    def interrupt_once_stored(session: Session) -> None:
+        if any(isinstance(row, Run) for row in session.identity_map.values()):
+            os.kill(os.getpid(), signal.SIGINT)
+
+    event.listen(Session, "after_commit", interrupt_once_stored)
+    try:
+        result = process(simulated, database)
+    finally:
+        event.remove(Session, "after_commit", interrupt_once_stored)
+    assert result.exit_code == 130, result.output
+    with Session(create_engine(database)) as session:
+        (run,) = session.scalars(select(Run)).all()
+    assert result.output.strip().splitlines()[-1] == (
+        f"interrupted: stored as run {run.id}, its alerts not evaluated "
+        f"(catenary alerts evaluate --run {run.id})"
+    )
+    assert run.samples_path is not None
+    assert (isolated_environment / run.samples_path).is_file()
+    assert [p.name for p in (isolated_environment / "samples").iterdir()] == [
+        Path(run.samples_path).name
+    ]

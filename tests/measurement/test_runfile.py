@@ -973,3 +973,62 @@ def test_process_refuses_a_forged_size_in_one_line_at_once(run_path: Path) -> No
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 1 and len(lines) == 1, done.stderr
     assert str(run_path) in lines[0] and "/scans/position_m" in lines[0]
+
+
+def _damaged(path: Path, offset: int) -> Path:
+    """A copy of ``path`` with the byte at ``offset`` inverted."""
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0xFF
+    copy = path.with_name(f"damaged-{offset}.h5")
+    copy.write_bytes(data)
+    return copy
+
+
+def test_a_damaged_attribute_is_a_format_error_naming_it(run_path: Path) -> None:
+    write_run(run_path, [10])
+    name = run_path.read_bytes().index(b"scan_rate_hz\x00")
+    damaged = _damaged(run_path, name + 16)  # the attribute's datatype, after its name
+    with pytest.raises(FormatError, match="/ attribute scan_rate_hz cannot be read") as info:
+        open_run(damaged)
+    assert str(info.value).startswith(f"{damaged}: ") and "\n" not in str(info.value)
+
+
+def test_an_attribute_holding_many_values_is_refused_unread(run_path: Path) -> None:
+    write_run(run_path, [10])
+    with h5py.File(run_path, "r+") as f:
+        f.attrs["line"] = np.zeros(1000)
+    with pytest.raises(FormatError, match="/ attribute line holds 1000 values, expected one"):
+        open_run(run_path)
+
+
+def test_a_root_group_damaged_past_what_opening_checks_is_a_format_error(run_path: Path) -> None:
+    write_run(run_path, [10])
+    # the root group's header continues near the end of the file (attributes added last);
+    # HDF5 opens the file and fails only when the group is read
+    size = run_path.stat().st_size
+    for offset in range(size - 1, size - 1024, -1):
+        damaged = _damaged(run_path, offset)
+        try:
+            with h5py.File(damaged, "r") as f:
+                f.attrs  # noqa: B018
+        except KeyError:
+            break
+        except OSError:  # HDF5 does not open it at all
+            pass
+        damaged.unlink()
+    else:
+        pytest.fail("no byte near the end of the file holds the root group's header")
+    with pytest.raises(FormatError, match="damaged HDF5 file") as info:
+        open_run(damaged)
+    assert str(info.value).startswith(f"{damaged}: ") and "\n" not in str(info.value)
+
+
+def test_a_damaged_chunk_is_a_format_error_naming_the_dataset(run_path: Path) -> None:
+    write_run(run_path, [40], compression="gzip")
+    with h5py.File(run_path, "r") as f:
+        chunk = f["cameras/b/lines"].id.get_chunk_info(1)
+    damaged = _damaged(run_path, chunk.byte_offset + chunk.size // 2)
+    with open_run(damaged) as run, pytest.raises(FormatError) as info:
+        list(run.blocks(8))
+    assert str(info.value).startswith(f"{damaged}: /cameras/b/lines[16:24] cannot be read (")
+    assert "\n" not in str(info.value)

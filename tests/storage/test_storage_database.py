@@ -2,18 +2,24 @@
 
 from __future__ import annotations
 
+import sqlite3
+import time
 from pathlib import Path
 
 import pytest
 import sqlalchemy as sa
 
+from catenary.config import Settings
 from catenary.errors import DatabaseNotMigrated, UserError
 from catenary.storage import migrate
 from catenary.storage.database import (
+    SQLITE_BUSY_TIMEOUT_MS,
+    DatabaseUnavailable,
     make_engine,
     mask_url,
     open_database,
     require_migrated,
+    session_scope,
 )
 
 UNREACHABLE = "postgresql+psycopg://fleet:s3cret@127.0.0.1:1/catenary"
@@ -169,3 +175,48 @@ def test_a_sqlite_file_that_does_not_exist_is_refused_not_created(tmp_path: Path
         ):
             pass
     assert not file.exists()
+
+
+@pytest.mark.parametrize("batch", [False, True])
+def test_the_statement_timeout_bounds_interactive_commands_only(
+    database_url: str, tmp_path: Path, batch: bool
+) -> None:
+    settings = Settings(database_url=database_url, data_dir=tmp_path, statement_timeout_s=1.5)
+    with (
+        open_database(settings, migrated=False, batch=batch) as engine,
+        engine.connect() as connection,
+    ):
+        if engine.dialect.name == "postgresql":
+            timeout = connection.exec_driver_sql("SHOW statement_timeout").scalar()
+            assert timeout == ("0" if batch else "1500ms")
+            # the URL's own options (the test's schema) are kept
+            assert "catenary_test_" in str(connection.exec_driver_sql("SHOW search_path").scalar())
+            # a host that has gone is found within a minute (measured: 61 s idle, 60.6 s with a
+            # statement sent, loopback cut in a private network namespace)
+            parameters = connection.connection.dbapi_connection.info.get_parameters()
+            assert {k: parameters[k] for k in ("keepalives_idle", "tcp_user_timeout")} == {
+                "keepalives_idle": "30",
+                "tcp_user_timeout": "60000",
+            }
+        else:  # SQLite: the wait for another writer's lock
+            timeout = connection.exec_driver_sql("PRAGMA busy_timeout").scalar()
+            assert timeout == (SQLITE_BUSY_TIMEOUT_MS if batch else 1500)
+
+
+def test_a_sqlite_write_lock_not_granted_in_time_is_one_line(tmp_path: Path) -> None:
+    path = tmp_path / "c.sqlite"
+    engine = make_engine(f"sqlite:///{path}", statement_timeout_s=0.2)
+    holder = sqlite3.connect(path, isolation_level=None)
+    holder.execute("BEGIN IMMEDIATE")
+    try:
+        start = time.monotonic()
+        with pytest.raises(DatabaseUnavailable) as caught, session_scope(engine) as session:
+            session.execute(sa.text("SELECT 1"))
+        assert time.monotonic() - start < 5
+    finally:
+        holder.rollback()
+        holder.close()
+        engine.dispose()
+    assert str(caught.value) == (
+        f"database sqlite:///{path} is locked by another writer: gave up after 0.2 s"
+    )

@@ -10,7 +10,11 @@ traceback, with exit status 1; usage errors exit 2.
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable
+import signal
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from types import FrameType
 from typing import Any
 
 import click
@@ -22,6 +26,57 @@ from catenary.wiretype import ProfileRangeError
 INTERRUPTED_EXIT_CODE = 130
 """Exit status of a command stopped by Ctrl-C after keeping what it had done (the shell's
 convention)."""
+TERMINATED_EXIT_CODE = 143
+"""Exit status of a command stopped by SIGTERM the same way (128 + 15)."""
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, raised where Ctrl-C raises ``KeyboardInterrupt`` (``Interruptions``)."""
+
+
+class Interruptions:
+    """Ctrl-C and SIGTERM during a command (``handled()``): each raises where it lands
+    (``KeyboardInterrupt``, ``Terminated``: SIGTERM stops the command as Ctrl-C does, what is
+    committed kept, scratch files removed; Python's default would end the process at once,
+    cleaning nothing) and is kept in ``received``. One that lands where Python only prints
+    it (a weakref callback, a ``__del__``) is not printed, and is raised again by the
+    command's next ``check()``.
+    """
+
+    def __init__(self) -> None:
+        self.received: KeyboardInterrupt | None = None
+
+    def check(self) -> None:
+        if self.received is not None:
+            raise self.received
+
+    @contextmanager
+    def handled(self) -> Iterator[None]:
+        def interrupt(signum: int, frame: FrameType | None) -> None:
+            self.received = Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+            raise self.received
+
+        def unraisable(unraisable: sys.UnraisableHookArgs) -> None:
+            if unraisable.exc_value is not self.received:
+                hook(unraisable)
+
+        hook = sys.unraisablehook
+        previous = {number: signal.signal(number, interrupt) for number in _INTERRUPTIONS}
+        sys.unraisablehook = unraisable
+        try:
+            yield
+        finally:
+            sys.unraisablehook = hook
+            for number, handler in previous.items():
+                signal.signal(number, handler)
+
+
+_INTERRUPTIONS = (signal.SIGINT, signal.SIGTERM)
+
+
+def interrupted_exit_code(interruption: KeyboardInterrupt) -> int:
+    """130 for Ctrl-C, 143 for SIGTERM."""
+    return TERMINATED_EXIT_CODE if isinstance(interruption, Terminated) else INTERRUPTED_EXIT_CODE
 
 
 def app_of(ctx: click.Context) -> CommandContext:

@@ -92,7 +92,7 @@ def evaluate_command(
     app = app_of(ctx)
     policy = _policy(app, policy_name, policy_file)
     horizon = horizon_days(app.settings)
-    with app.database() as engine:
+    with app.database(batch=everything) as engine:
         run_ids = None
         if run_reference is not None:
             with session_scope(engine, read_only=True) as session:

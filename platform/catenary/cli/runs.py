@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from catenary.cli.app import INTERRUPTED_EXIT_CODE, app_of
+from catenary.cli.app import Interruptions, app_of, interrupted_exit_code
 from catenary.domain import CODE_LENGTH
 from catenary.errors import UserError
 from catenary.plugins import database_option
@@ -66,7 +66,7 @@ def process(
     """Process a recorded run into per-span wear in the database."""
     from catenary.maintenance.alerts import evaluate_stored_run, run_alerting, run_alerts_lines
     from catenary.maintenance.notifications import notification_config
-    from catenary.measurement.process import ProcessRequest, process_run
+    from catenary.measurement.process import ProcessRequest, StoredThenInterrupted, process_run
     from catenary.storage.database import open_database
 
     app = app_of(ctx)
@@ -84,38 +84,54 @@ def process(
     alerting = run_alerting(settings, app.registry)
     if alerting.policy is not None:  # its alerts queue notifications: a wrong channel, now
         notification_config(settings, app.registry)
-    with ExitStack() as stack:
-        bar: list[Any] = []
+    interruptions = Interruptions()
 
-        def start(header: RunHeader) -> None:
-            bar.append(
-                stack.enter_context(
-                    click.progressbar(
-                        length=header.scans,
-                        label="processing",
-                        file=sys.stderr,
-                        hidden=not sys.stderr.isatty(),  # no bar in logs
+    def progress(scans: int) -> None:
+        interruptions.check()
+        bar[0].update(scans)
+
+    with interruptions.handled():
+        try:
+            with ExitStack() as stack:
+                bar: list[Any] = []
+
+                def start(header: RunHeader) -> None:
+                    bar.append(
+                        stack.enter_context(
+                            click.progressbar(
+                                length=header.scans,
+                                label="processing",
+                                file=sys.stderr,
+                                hidden=not sys.stderr.isatty(),  # no bar in logs
+                            )
+                        )
                     )
-                )
-            )
 
-        result = process_run(
-            request, settings, app.registry, progress=lambda n: bar[0].update(n), on_start=start
-        )
-    stored = f"{run_path} is already stored with this rig calibration as run {result.run_id}"
-    if result.already_stored and not (result.alerts_pending and alerting.policy is not None):
-        click.echo(f"{stored}: nothing done (--replace processes it again)")
-        return
-    try:
-        with open_database(settings) as engine:
-            alerts = evaluate_stored_run(alerting, engine, settings, app.registry, result.run_id)
-    except KeyboardInterrupt:  # the run is committed: say so, and what is left to do
-        click.echo(
-            f"interrupted: stored as run {result.run_id}, its alerts not evaluated "
-            f"(catenary alerts evaluate --run {result.run_id})",
-            err=True,
-        )
-        ctx.exit(INTERRUPTED_EXIT_CODE)
+                result = process_run(
+                    request,
+                    settings,
+                    app.registry,
+                    progress=progress,
+                    on_start=start,
+                )
+        except StoredThenInterrupted as stopped:
+            _interrupted_once_stored(ctx, stopped.run_id, stopped.interruption)
+        except KeyboardInterrupt as interruption:
+            click.echo(f"interrupted: {run_path} not stored (nothing of it kept)", err=True)
+            ctx.exit(interrupted_exit_code(interruption))
+        if interruptions.received is not None and not result.already_stored:
+            _interrupted_once_stored(ctx, result.run_id, interruptions.received)
+        stored = f"{run_path} is already stored with this rig calibration as run {result.run_id}"
+        if result.already_stored and not (result.alerts_pending and alerting.policy is not None):
+            click.echo(f"{stored}: nothing done (--replace processes it again)")
+            return
+        try:
+            with open_database(settings, batch=True) as engine:
+                alerts = evaluate_stored_run(
+                    alerting, engine, settings, app.registry, result.run_id
+                )
+        except KeyboardInterrupt as interruption:
+            _interrupted_once_stored(ctx, result.run_id, interruption)
     if result.already_stored:
         lines = [f"{stored}; its alerts were not evaluated yet: evaluated now"]
     else:
@@ -134,6 +150,18 @@ def process(
             f"({printable(str(failure))}): "
             "catenary alerts evaluate --all tries again"
         )
+
+
+def _interrupted_once_stored(
+    ctx: click.Context, run_id: int, interruption: KeyboardInterrupt
+) -> None:
+    """Say that the run is stored and what is left to do, and exit as interrupted."""
+    click.echo(
+        f"interrupted: stored as run {run_id}, its alerts not evaluated "
+        f"(catenary alerts evaluate --run {run_id})",
+        err=True,
+    )
+    ctx.exit(interrupted_exit_code(interruption))
 
 
 @click.command("export")

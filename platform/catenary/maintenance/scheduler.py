@@ -36,6 +36,7 @@ ones finish (the lease still renewed), then the lease is released.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import signal
 import threading
@@ -462,6 +463,8 @@ def serve(
     (a standby again) or a signal stops it.
     """
     config = scheduler_config(settings)
+    # jobs are batch work: no statement timeout, whatever database a job opens
+    settings = dataclasses.replace(settings, statement_timeout_s=None)
     with open_database(settings) as engine:
         context = JobContext(settings, registry, engine, config.timezone, clock)
         leadership = Leadership(engine, config.lease)

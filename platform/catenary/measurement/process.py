@@ -29,7 +29,10 @@
    is not stored: the same run processed twice at once is stored once, and the other process
    says it is already stored (on SQLite it waits for the first's write lock; on PostgreSQL
    its insert breaks the unique key, which is turned into "already stored") and removes its
-   samples file.
+   samples file. Ctrl-C and
+   SIGTERM are held while that transaction runs and delivered once its outcome is known: an
+   interruption never removes the samples file of a run it did not stop from being stored,
+   and one delivered after the commit is raised as ``StoredThenInterrupted``.
 
 The alerts a stored run raises are not evaluated here (measurement knows nothing of
 maintenance): the command that processes the run evaluates them once it is committed
@@ -44,14 +47,17 @@ from __future__ import annotations
 import hashlib
 import math
 import os
+import signal
 import socket
+import threading
 import time
 import uuid
-from collections.abc import Callable, Mapping
-from contextlib import AbstractContextManager
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import AbstractContextManager, contextmanager
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 import numpy as np
@@ -88,6 +94,7 @@ __all__ = [
     "DEFAULT_PROCESSOR",
     "ProcessRequest",
     "ProcessResult",
+    "StoredThenInterrupted",
     "database_fingerprint",
     "process_run",
     "remove_abandoned_scratch",
@@ -554,6 +561,42 @@ def _started_at(header: RunHeader) -> datetime:
     return moment if moment.tzinfo is not None else moment.replace(tzinfo=UTC)
 
 
+@contextmanager
+def _interruptions_held() -> Iterator[None]:
+    """SIGINT and SIGTERM received during the block are raised again when it ends, for the
+    handlers that were there. (Python runs signal handlers in the main thread only: in another
+    thread there is nothing to hold.)"""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+
+    def hold(signum: int, frame: FrameType | None) -> None:
+        received.append(signum)
+
+    previous = {number: signal.signal(number, hold) for number in _INTERRUPTIONS}
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+        for signum in dict.fromkeys(received):
+            signal.raise_signal(signum)
+
+
+_INTERRUPTIONS = (signal.SIGINT, signal.SIGTERM)
+
+
+class StoredThenInterrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM (``interruption``) arrived while the run was stored: it is stored
+    as ``run_id``, and nothing after the commit was done."""
+
+    def __init__(self, run_id: int, interruption: KeyboardInterrupt) -> None:
+        super().__init__(run_id)
+        self.run_id = run_id
+        self.interruption = interruption
+
+
 class _StoredMeanwhile(Exception):
     """Another process stored the same run while this one measured it."""
 
@@ -573,7 +616,7 @@ def process_run(
     inputs = _check_inputs(request, settings, registry)
     processor, geometry = _processor(request, registry, settings)
     rig_sha256 = hashlib.sha256(inputs.rig_text.encode("utf-8")).hexdigest()
-    with open_database(settings) as engine:
+    with open_database(settings, batch=True) as engine:
         with session_scope(engine, read_only=True) as session:
             stored = find_stored_run(session, inputs.source_sha256, geometry.name, rig_sha256)
             if stored is not None and not request.replace:
@@ -598,6 +641,7 @@ def process_run(
         measured = folder / _scratch_name("pass1", token)
         partial = folder / _scratch_name("samples", token)
         final: Path | None = None
+        kept: Path | None = None
         old_samples: str | None = None
         try:
             with SampleWriter(measured, _MEASURED_SCHEMA) as writer:
@@ -624,53 +668,57 @@ def process_run(
             span_rows = _span_rows(spans.results(), layout, request.wire_type)
             header = inputs.header
             try:
-                with session_scope(engine) as session:
-                    # the check that counts is in the transaction that stores: on SQLite it
-                    # holds the write lock, so a concurrent process of the same run waits
-                    # for it here and then finds the run stored
-                    if replaced is None:
-                        stored = find_stored_run(
-                            session, inputs.source_sha256, geometry.name, rig_sha256
+                with _interruptions_held():
+                    with session_scope(engine) as session:
+                        # the check that counts is in the transaction that stores: on SQLite it
+                        # holds the write lock, so a concurrent process of the same run waits
+                        # for it here and then finds the run stored
+                        if replaced is None:
+                            stored = find_stored_run(
+                                session, inputs.source_sha256, geometry.name, rig_sha256
+                            )
+                            if stored is not None:
+                                raise _StoredMeanwhile(stored.id)
+                        run, old_samples = store_run(
+                            session,
+                            line=inputs.line,
+                            track=inputs.track,
+                            register=inputs.register,
+                            geometry=geometry,
+                            rig_name=request.rig_path.stem,
+                            rig_text=inputs.rig_text,
+                            replacing=replaced,
+                            span_rows=span_rows,
+                            values=dict(
+                                direction=header.direction,
+                                source_file=str(request.run_path.resolve()),
+                                source_sha256=inputs.source_sha256,
+                                wire_type=request.wire_type,
+                                started_at=_started_at(header),
+                                processed_at=datetime.now(UTC),
+                                scans=header.scans,
+                                length_m=float(abs(ends[1] - ends[0])),
+                                status="complete",
+                                error=None,
+                                chainage_aligned=alignment.aligned,
+                                chainage_offset_m=alignment.offset_m,
+                                encoder_scale=alignment.scale,
+                                alignment_matched=alignment.matched,
+                                alignment_rms_m=alignment.residual_rms_m
+                                if alignment.aligned
+                                else None,
+                                alerts_evaluated_at=None,  # new or replaced spans: pending
+                            ),
                         )
-                        if stored is not None:
-                            raise _StoredMeanwhile(stored.id)
-                    run, old_samples = store_run(
-                        session,
-                        line=inputs.line,
-                        track=inputs.track,
-                        register=inputs.register,
-                        geometry=geometry,
-                        rig_name=request.rig_path.stem,
-                        rig_text=inputs.rig_text,
-                        replacing=replaced,
-                        span_rows=span_rows,
-                        values=dict(
-                            direction=header.direction,
-                            source_file=str(request.run_path.resolve()),
-                            source_sha256=inputs.source_sha256,
-                            wire_type=request.wire_type,
-                            started_at=_started_at(header),
-                            processed_at=datetime.now(UTC),
-                            scans=header.scans,
-                            length_m=float(abs(ends[1] - ends[0])),
-                            status="complete",
-                            error=None,
-                            chainage_aligned=alignment.aligned,
-                            chainage_offset_m=alignment.offset_m,
-                            encoder_scale=alignment.scale,
-                            alignment_matched=alignment.matched,
-                            alignment_rms_m=alignment.residual_rms_m if alignment.aligned else None,
-                            alerts_evaluated_at=None,  # new or replaced spans: pending
-                        ),
-                    )
-                    # the run's name for the file; the hidden one names this process until
-                    # the commit, so that a kill before or after it is told apart and tidied
-                    # (remove_abandoned_scratch)
-                    final = folder / f"run-{run.id}-{token}.parquet"
-                    os.link(partial, final)
-                    run.samples_path = str(final.relative_to(settings.data_dir))
-                    session.flush()
-                    run_id = run.id
+                        # the run's name for the file; the hidden one names this process
+                        # until the commit, so that a kill before or after it is told apart
+                        # and tidied (remove_abandoned_scratch)
+                        final = folder / f"run-{run.id}-{token}.parquet"
+                        os.link(partial, final)
+                        run.samples_path = str(final.relative_to(settings.data_dir))
+                        session.flush()
+                        run_id = run.id
+                    kept, final = final, None  # the stored run's: never removed from here on
             except IntegrityError:
                 # PostgreSQL: a concurrent process stored the same run first; this insert
                 # waited for its commit and then broke a unique key
@@ -681,7 +729,6 @@ def process_run(
                 if stored is None or replaced is not None:
                     raise
                 raise _StoredMeanwhile(stored.id) from None
-            samples_file, final = final, None  # committed: the run's, whatever happens now
             partial.unlink()
             if old_samples:
                 (settings.data_dir / old_samples).unlink(missing_ok=True)
@@ -691,6 +738,8 @@ def process_run(
                     path.unlink(missing_ok=True)
             if isinstance(exc, _StoredMeanwhile):
                 return ProcessResult(run_id=exc.run_id, already_stored=True, header=inputs.header)
+            if isinstance(exc, KeyboardInterrupt) and kept is not None:
+                raise StoredThenInterrupted(run_id, exc) from None
             raise
     registry.run_stored(run_id, settings.database_url)
     minimum = min(span_rows, key=lambda r: r.min_residual_thickness_mm, default=None)
@@ -710,5 +759,5 @@ def process_run(
         outside_spans=outside,
         faulty=faulty,
         minimum=minimum,
-        samples_path=samples_file,
+        samples_path=kept,
     )

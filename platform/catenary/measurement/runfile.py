@@ -110,6 +110,7 @@ _VEHICLE_STAGE: Final = 4096  # vehicle samples staged before writing
 _CHUNK_TARGET_BYTES: Final = 2 * 1024 * 1024
 _VALIDATE_SLICE: Final = 262144  # samples read at a time when checking a 1-D dataset on open
 _CACHE_CAP_BYTES: Final = 256 * 1024 * 1024
+_ATTR_MAX_VALUES: Final = 64  # an attribute holding more is refused before it is read
 
 _SCAN_SERIES: Final = ("position_m", "time_s")
 _VEHICLE_SERIES: Final = ("time_s", "left_mm", "right_mm", "lateral_mm")
@@ -714,10 +715,14 @@ class RunFile:
         try:
             self._file = h5py.File(self.path, "r")
         except OSError as exc:
-            reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise FormatError(self.path, f"not a readable HDF5 file ({reason})") from None
+            raise FormatError(self.path, f"not a readable HDF5 file ({_reason(exc)})") from None
         try:
             self._open()
+        except _DAMAGED as exc:
+            self._file.close()
+            if isinstance(exc, FormatError):
+                raise
+            raise FormatError(self.path, f"damaged HDF5 file ({_reason(exc)})") from None
         except BaseException:
             self._file.close()
             raise
@@ -834,12 +839,17 @@ class RunFile:
 
     def _attr(self, name: str, where: str = "/") -> Any:
         attrs = self._file[where].attrs
-        if name not in attrs:
-            raise self._fail(f"{where} attribute {name} is missing")
         try:
+            if name not in attrs:
+                raise self._fail(f"{where} attribute {name} is missing")
+            values = math.prod(attrs.get_id(name).shape or ())
+            if values > _ATTR_MAX_VALUES:  # read nothing of it: its size may be forged
+                raise self._fail(f"{where} attribute {name} holds {values} values, expected one")
             return attrs[name]
-        except (OSError, TypeError, ValueError) as exc:
-            raise self._fail(f"{where} attribute {name} cannot be read ({exc})") from None
+        except (*_DAMAGED, TypeError, ValueError) as exc:
+            if isinstance(exc, FormatError):
+                raise
+            raise self._fail(f"{where} attribute {name} cannot be read ({_reason(exc)})") from None
 
     def _attr_str(self, name: str) -> str:
         value = self._attr(name)
@@ -1063,6 +1073,15 @@ RunFileReader = RunFile
 """Alias: the reader class is :class:`RunFile`."""
 
 
+_DAMAGED: Final = (OSError, RuntimeError, KeyError)
+"""What h5py raises reading the damaged metadata or chunks of a file it could open."""
+
+
+def _reason(exc: BaseException) -> str:
+    """The first line of an h5py error's message."""
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+
+
 def _rows_held(ds: Any) -> int:
     """The rows of ``ds`` (``[N, ...]``) its file stores, at most: a contiguous dataset's
     allocated bytes over a row's bytes; a chunked one's allocated chunks (whatever their
@@ -1076,9 +1095,15 @@ def _rows_held(ds: Any) -> int:
 
 
 def _read_rows(ds: Any, first: int, last: int, dtype: Any) -> Any:
-    """Rows ``first:last`` of ``ds`` into a new native-endian array of ``dtype``."""
+    """Rows ``first:last`` of ``ds`` into a new native-endian array of ``dtype``; a damaged
+    chunk is a ``FormatError`` naming the file and the dataset."""
     out = np.empty((last - first, *ds.shape[1:]), dtype=dtype)
-    ds.read_direct(out, np.s_[first:last], np.s_[0 : last - first])
+    try:
+        ds.read_direct(out, np.s_[first:last], np.s_[0 : last - first])
+    except _DAMAGED as exc:
+        raise FormatError(
+            ds.file.filename, f"{ds.name}[{first}:{last}] cannot be read ({_reason(exc)})"
+        ) from None
     return out
 
 
@@ -1108,7 +1133,7 @@ class _VehicleStream:
         t = _read_rows(self._datasets["time_s"], first, last, np.float64)
         v = np.empty((3, last - first), dtype=np.float64)
         for row, name in enumerate(_VEHICLE_SERIES[1:]):
-            self._datasets[name].read_direct(v[row], np.s_[first:last], np.s_[0 : last - first])
+            v[row] = _read_rows(self._datasets[name], first, last, np.float64)
         valid = np.isfinite(v).all(axis=0)
         faulty_so_far = np.cumsum(~valid)
         kept = np.flatnonzero(valid)

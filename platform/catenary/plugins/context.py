@@ -74,13 +74,17 @@ class CommandContext:
         self._loaded = self._settings = None
 
     @contextmanager
-    def database(self, *, migrated: bool = True, create: bool = False) -> Iterator[Engine]:
+    def database(
+        self, *, migrated: bool = True, create: bool = False, batch: bool = False
+    ) -> Iterator[Engine]:
         """The invocation's database (an engine, disposed of on exit); ``migrated``: refuse, in
         one line, a database whose schema is not at the head revision; ``create``: make a
-        SQLite file that does not exist (else refused)."""
+        SQLite file that does not exist (else refused); ``batch``: a batch command, which the
+        statement timeout (``[database] statement_timeout_s``) of interactive commands does not
+        bound."""
         from catenary.storage.database import open_database
 
-        with open_database(self.settings, migrated=migrated, create=create) as engine:
+        with open_database(self.settings, migrated=migrated, create=create, batch=batch) as engine:
             yield engine
 
 

@@ -3,28 +3,55 @@
 A SQLite file is the default (one user, zero set-up); PostgreSQL serves a fleet. Every error a
 user can cause here (a malformed URL, an unknown driver, a server that cannot be reached, a
 database that is not migrated) is a one-line ``UserError`` naming the URL with any password
-masked.
+masked; so is a connection lost in the middle of a command (``DatabaseUnavailable``).
+
+Bounded waits on PostgreSQL: connecting gives up after the connect timeout; TCP keepalives
+(probes after :data:`KEEPALIVE_IDLE_S` idle, every :data:`KEEPALIVE_INTERVAL_S`,
+:data:`KEEPALIVE_COUNT` unanswered) and ``tcp_user_timeout`` (:data:`TCP_USER_TIMEOUT_MS`)
+end a connection whose server's host has gone (powered off, unplugged): its kernel no longer
+answers. They cannot tell a server that is there but silent (its kernel still acknowledges):
+that is what the statement timeout bounds, for interactive commands.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import re
+import socket
+import sqlite3
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 from sqlalchemy import Engine, create_engine, event
-from sqlalchemy.engine import URL, Connection, make_url
+from sqlalchemy.engine import URL, Connection, ExceptionContext, make_url
 from sqlalchemy.exc import ArgumentError, DBAPIError, NoSuchModuleError, OperationalError
 from sqlalchemy.orm import Session
 
 from catenary.config import DEFAULT_CONNECT_TIMEOUT_S, Settings
 from catenary.errors import DatabaseNotMigrated, UserError
 
-#: How long a SQLite connection waits for another process's lock before giving up.
+#: How long a SQLite connection waits for another process's lock before giving up (the
+#: statement timeout, when shorter).
 SQLITE_BUSY_TIMEOUT_MS = 30_000
+
+#: PostgreSQL: a connection idle this long is probed, every interval, and dropped after this
+#: many unanswered probes; data sent and not acknowledged for TCP_USER_TIMEOUT_MS drops it too.
+KEEPALIVE_IDLE_S = 30
+KEEPALIVE_INTERVAL_S = 10
+KEEPALIVE_COUNT = 3
+TCP_USER_TIMEOUT_MS = 60_000
+
+#: PostgreSQL: how long past the statement timeout a statement's answer may take before the
+#: client gives up on a silent server (the server's own timeout is then lost on the way).
+STATEMENT_GRACE_S = 2.0
+
+# SQLSTATE of a statement the server cancelled (statement_timeout)
+_QUERY_CANCELED = "57014"
 
 #: The execution option that marks a connection's transactions as reading only (SQLite then
 #: begins them deferred; see ``_begin_sqlite_transaction``).
@@ -75,7 +102,108 @@ def _sqlite_file(url: URL) -> Path | None:
     return Path(database)
 
 
-def make_engine(url: str, *, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S) -> Engine:
+class DatabaseUnavailable(UserError):
+    """The database stopped answering, or the connection to it was lost, during a command."""
+
+
+class _Watchdog:
+    """Cuts a PostgreSQL connection whose statement or commit has not been answered
+    ``limit_s`` after it was sent (a silent server): its socket is shut down, so the driver's
+    wait ends at once with a lost connection."""
+
+    def __init__(self, dbapi_connection: Any, limit_s: float) -> None:
+        self._connection = dbapi_connection
+        self._limit_s = limit_s
+        self._timer: threading.Timer | None = None
+        self._lock = threading.Lock()
+        self.fired = False
+
+    def arm(self) -> None:
+        with self._lock:
+            if self._timer is not None:
+                self._timer.cancel()
+            self._timer = threading.Timer(self._limit_s, self._cut)
+            self._timer.daemon = True
+            self._timer.start()
+
+    def disarm(self) -> None:
+        with self._lock:
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer = None
+
+    def _cut(self) -> None:
+        from psycopg.pq import TransactionStatus
+
+        with self._lock:
+            if threading.current_thread() is not self._timer:
+                return  # re-armed (or disarmed) as it fired
+            busy = self._connection.pgconn.transaction_status == TransactionStatus.ACTIVE
+            if not busy or self._connection.closed:
+                return
+            self.fired = True
+            with socket.socket(fileno=os.dup(self._connection.fileno())) as sock:
+                sock.shutdown(socket.SHUT_RDWR)
+
+
+_WATCHDOG = "catenary_watchdog"
+
+
+def _watch_statements(engine: Engine, limit_s: float) -> None:
+    """Arm a ``_Watchdog`` of ``limit_s`` on each statement, commit and rollback of
+    ``engine``'s connections."""
+
+    def connect(dbapi_connection: Any, record: Any) -> None:
+        record.info[_WATCHDOG] = _Watchdog(dbapi_connection, limit_s)
+
+    def arm(conn: Connection, *args: Any) -> None:
+        if not conn.invalidated:  # a lost connection has nothing left to watch
+            conn.info[_WATCHDOG].arm()
+
+    def disarm(conn: Connection, *args: Any) -> None:
+        conn.info[_WATCHDOG].disarm()
+
+    event.listen(engine, "connect", connect)
+    for name in ("before_cursor_execute", "commit", "rollback"):
+        event.listen(engine, name, arm)
+    event.listen(engine, "after_cursor_execute", disarm)
+
+
+def _lost_connection(
+    where: str, statement_timeout_s: float | None, busy_timeout_ms: int, context: ExceptionContext
+) -> BaseException | None:
+    """The one-line ``DatabaseUnavailable`` for a connection lost, a statement timed out or a
+    SQLite write lock not granted in time while a command ran (``handle_error``); None leaves
+    any other error as it is."""
+    if context.is_pre_ping or context.connection is None:
+        return None  # pre-ping reconnects; connect errors are reported by ``connected``
+    connection = context.connection
+    watchdog = connection.info.get(_WATCHDOG) if not connection.invalidated else None
+    if watchdog is not None:
+        watchdog.disarm()
+    orig = context.original_exception
+    timed_out = getattr(orig, "sqlstate", None) == _QUERY_CANCELED
+    if statement_timeout_s is not None and (timed_out or (watchdog is not None and watchdog.fired)):
+        return DatabaseUnavailable(
+            f"database {where} did not answer within the statement timeout "
+            f"({statement_timeout_s:g} s, [database] statement_timeout_s)"
+        )
+    if context.is_disconnect:
+        return DatabaseUnavailable(f"lost the connection to database {where}: {one_line(orig)}")
+    if isinstance(orig, sqlite3.OperationalError) and "database is locked" in str(orig):
+        return DatabaseUnavailable(
+            f"database {where} is locked by another writer: gave up after "
+            f"{busy_timeout_ms / 1000:g} s"
+        )
+    return None
+
+
+def make_engine(
+    url: str,
+    *,
+    connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S,
+    statement_timeout_s: float | None = None,
+) -> Engine:
     """An engine for ``url``.
 
     SQLite: ``~`` in the path is expanded, the file's directory is created, foreign keys are
@@ -88,7 +216,14 @@ def make_engine(url: str, *, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_
     backends: connections are checked before use (``pool_pre_ping``), so a long-running service
     survives a server restart; PostgreSQL: connecting gives up after ``connect_timeout_s``
     (whole seconds, at least 2: libpq's minimum), so a server that accepts and never answers
-    is a one-line error, not a hang.
+    is a one-line error, not a hang, and TCP keepalives end a connection to a host that has
+    gone (module docstring).
+
+    ``statement_timeout_s`` (None: none) bounds each statement: PostgreSQL cancels it
+    (``statement_timeout``), and a server that does not answer at all is given up
+    ``STATEMENT_GRACE_S`` later; SQLite waits at most that long for another writer's lock.
+    A connection lost during a statement, or a statement timed out, raises the one-line
+    ``DatabaseUnavailable``.
 
     Raises ``UserError`` for a malformed URL, an unknown or missing driver, or a SQLite directory
     that cannot be created.
@@ -114,7 +249,24 @@ def make_engine(url: str, *, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_
     else:
         options["pool_pre_ping"] = True
     if parsed.get_backend_name() == "postgresql":
-        options["connect_args"] = {"connect_timeout": max(2, math.ceil(connect_timeout_s))}
+        connect_args: dict[str, Any] = {
+            "connect_timeout": max(2, math.ceil(connect_timeout_s)),
+            "keepalives": 1,
+            "keepalives_idle": KEEPALIVE_IDLE_S,
+            "keepalives_interval": KEEPALIVE_INTERVAL_S,
+            "keepalives_count": KEEPALIVE_COUNT,
+            "tcp_user_timeout": TCP_USER_TIMEOUT_MS,
+        }
+        if statement_timeout_s is not None:
+            milliseconds = max(1, math.ceil(statement_timeout_s * 1000))
+            given = parsed.query.get("options", ())  # the URL's own (e.g. a search_path) kept
+            connect_args["options"] = " ".join(
+                [
+                    *([given] if isinstance(given, str) else given),
+                    f"-c statement_timeout={milliseconds}",
+                ]
+            )
+        options["connect_args"] = connect_args
     where = mask_url(parsed)
     try:
         engine = create_engine(parsed, **options)
@@ -130,6 +282,12 @@ def make_engine(url: str, *, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_
     except (ArgumentError, TypeError) as exc:
         raise UserError(f"invalid database URL {where}: {one_line(exc)}") from None
 
+    busy_ms = SQLITE_BUSY_TIMEOUT_MS
+    if statement_timeout_s is not None:
+        busy_ms = min(busy_ms, max(1, math.ceil(statement_timeout_s * 1000)))
+    event.listen(
+        engine, "handle_error", partial(_lost_connection, where, statement_timeout_s, busy_ms)
+    )
     if engine.dialect.name == "sqlite":
         if sqlite_file is not None:
             try:
@@ -138,12 +296,16 @@ def make_engine(url: str, *, connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_
                 raise UserError(
                     f"cannot create the directory of database {where}: {exc.strerror}"
                 ) from None
-        event.listen(engine, "connect", _configure_sqlite_connection)
+        event.listen(engine, "connect", partial(_configure_sqlite_connection, busy_ms))
         event.listen(engine, "begin", _begin_sqlite_transaction)
+    elif engine.dialect.name == "postgresql" and statement_timeout_s is not None:
+        _watch_statements(engine, statement_timeout_s + STATEMENT_GRACE_S)
     return engine
 
 
-def _configure_sqlite_connection(dbapi_connection: Any, connection_record: Any) -> None:
+def _configure_sqlite_connection(
+    busy_timeout_ms: int, dbapi_connection: Any, connection_record: Any
+) -> None:
     # Python's sqlite3 begins transactions itself, only before INSERT, UPDATE and DELETE, so
     # DDL and reads would run outside them; let SQLAlchemy begin every transaction instead
     # (_begin_sqlite_transaction): then a failed migration or unit of work leaves nothing.
@@ -151,7 +313,7 @@ def _configure_sqlite_connection(dbapi_connection: Any, connection_record: Any) 
     cursor = dbapi_connection.cursor()
     try:
         cursor.execute("PRAGMA foreign_keys=ON")
-        cursor.execute(f"PRAGMA busy_timeout={SQLITE_BUSY_TIMEOUT_MS}")
+        cursor.execute(f"PRAGMA busy_timeout={busy_timeout_ms}")
     finally:
         cursor.close()
 
@@ -190,11 +352,20 @@ def connected(engine: Engine, *, read_only: bool = False) -> Iterator[Connection
 
 @contextmanager
 def open_database(
-    database: Settings | str, *, migrated: bool = True, create: bool = False
+    database: Settings | str,
+    *,
+    migrated: bool = True,
+    create: bool = False,
+    batch: bool = False,
 ) -> Iterator[Engine]:
-    """An engine for ``database`` (the settings' database, with their connect timeout, or a
-    URL), disposed of on exit; checked to be migrated unless told not to. A SQLite file that
-    does not exist is refused (``require_exists``) unless ``create`` (``catenary db upgrade``).
+    """An engine for ``database`` (the settings' database, with their connect and statement
+    timeouts, or a URL), disposed of on exit; checked to be migrated unless told not to. A
+    SQLite file that does not exist is refused (``require_exists``) unless ``create``
+    (``catenary db upgrade``).
+
+    ``batch``: the caller is a batch command or a scheduled job (``process``, ``alerts
+    evaluate --all``, the scheduler), whose statements may take as long as they need: the
+    statement timeout of interactive commands does not apply.
 
     The usual start of a command::
 
@@ -204,7 +375,11 @@ def open_database(
     if isinstance(database, str):
         engine = make_engine(database)
     else:
-        engine = make_engine(database.database_url, connect_timeout_s=database.connect_timeout_s)
+        engine = make_engine(
+            database.database_url,
+            connect_timeout_s=database.connect_timeout_s,
+            statement_timeout_s=None if batch else database.statement_timeout_s,
+        )
     try:
         if not create:
             require_exists(engine)

@@ -1,0 +1,133 @@
+"""A PostgreSQL server that goes silent or vanishes, through a proxy on 127.0.0.1 the test
+freezes or cuts (the shared server itself is never touched): one line, a bounded wait, nothing
+half-written, no password printed, and the next command working."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import tomli_w
+from sqlalchemy import Engine, create_engine, func, select, text
+from sqlalchemy.engine import make_url
+
+from catenary.storage.models import Run, SpanMeasurement
+
+from .conftest import assert_refused, assert_succeeded, catenary
+from .process_support import SmallRun, make_small_run
+from .proxy_support import Proxy, proxy_for
+
+pytestmark = pytest.mark.parametrize("database_url", ["postgresql"], indirect=True)
+
+PASSWORD = "s3cret-pw"
+MARGIN_S = 2.0  # what a loaded machine adds to a timeout, beyond the command's own start
+
+
+@pytest.fixture(scope="module")
+def small_run(tmp_path_factory: pytest.TempPathFactory) -> SmallRun:
+    return make_small_run(tmp_path_factory.mktemp("small"))
+
+
+@pytest.fixture
+def startup_s(engine: Engine, database_url: str) -> float:
+    """How long ``catenary alerts list`` takes here when the database answers (its start:
+    the interpreter, the plugins, connecting, the schema check), the base of its timeouts."""
+    start = time.monotonic()
+    assert_succeeded(catenary("alerts", "list", "--db", database_url))
+    return time.monotonic() - start
+
+
+@pytest.fixture
+def proxy(engine: Engine, database_url: str) -> Iterator[Proxy]:
+    """A proxy in front of the test's migrated database."""
+    with proxy_for(database_url) as proxy:
+        yield proxy
+
+
+def proxied(proxy: Proxy, database_url: str) -> str:
+    """The test's database through ``proxy``, with a password in the URL (trust auth ignores
+    it) that no message may print."""
+    url = make_url(proxy.url(database_url)).set(password=PASSWORD)
+    return url.render_as_string(hide_password=False)
+
+
+def config(tmp_path: Path, **database: float) -> Path:
+    path = tmp_path / "config.toml"
+    path.write_text(tomli_w.dumps({"database": database}))
+    return path
+
+
+def stored(database_url: str) -> tuple[int, int]:
+    """Runs and span rows in the database (read past the proxy)."""
+    engine = create_engine(database_url)
+    try:
+        with engine.connect() as connection:
+            runs = connection.scalar(select(func.count()).select_from(Run))
+            spans = connection.scalar(select(func.count()).select_from(SpanMeasurement))
+            return int(runs or 0), int(spans or 0)
+    finally:
+        engine.dispose()
+
+
+def test_a_silent_server_at_connect(
+    proxy: Proxy, database_url: str, tmp_path: Path, startup_s: float
+) -> None:
+    proxy.freeze()
+    start = time.monotonic()
+    result = catenary(
+        "--config", config(tmp_path, connect_timeout_s=2), "alerts", "list",
+        "--db", proxied(proxy, database_url),
+    )  # fmt: skip
+    elapsed = time.monotonic() - start
+    assert_refused(result, "cannot connect", f"127.0.0.1:{proxy.port}", secrets=[PASSWORD])
+    assert elapsed < startup_s + 2 + MARGIN_S, (elapsed, startup_s)
+
+
+def test_the_database_cut_in_the_middle_of_process(
+    proxy: Proxy, database_url: str, small_run: SmallRun, isolated_environment: Path
+) -> None:
+    url = proxied(proxy, database_url)
+    proxy.cut_on(b"INSERT INTO span_measurements")  # the run's row is in, uncommitted
+    result = catenary(*small_run.process_args(url))
+    assert_refused(result, "lost the connection to database", secrets=[PASSWORD])
+    assert stored(database_url) == (0, 0)
+    samples = isolated_environment / "samples"
+    assert list(samples.iterdir()) == []  # no samples file, no scratch file
+
+    proxy.restore()
+    assert_succeeded(catenary(*small_run.process_args(url)))
+    runs, spans = stored(database_url)
+    assert runs == 1 and spans > 0
+    assert len(list(samples.iterdir())) == 1
+
+
+def test_a_server_silent_mid_transaction_is_bounded_by_the_statement_timeout(
+    proxy: Proxy, database_url: str, tmp_path: Path, startup_s: float
+) -> None:
+    proxy.freeze_on(b"FROM alerts")  # after connecting and checking the schema
+    start = time.monotonic()
+    result = catenary(
+        "--config", config(tmp_path, statement_timeout_s=1), "alerts", "list",
+        "--db", proxied(proxy, database_url),
+    )  # fmt: skip
+    elapsed = time.monotonic() - start
+    assert_refused(result, "did not answer within the statement timeout (1 s", secrets=[PASSWORD])
+    # the timeout and its grace for a silent server
+    assert elapsed < startup_s + 1 + 2 + MARGIN_S, (elapsed, startup_s)
+
+
+def test_a_statement_waiting_on_a_lock_is_cancelled_by_the_server(
+    engine: Engine, database_url: str, tmp_path: Path, startup_s: float
+) -> None:
+    with engine.connect() as holder:
+        holder.execute(text("LOCK TABLE alerts IN ACCESS EXCLUSIVE MODE"))
+        start = time.monotonic()
+        result = catenary(
+            "--config", config(tmp_path, statement_timeout_s=1), "alerts", "list",
+            "--db", database_url,
+        )  # fmt: skip
+        elapsed = time.monotonic() - start
+    assert_refused(result, "did not answer within the statement timeout (1 s")
+    assert elapsed < startup_s + 1 + MARGIN_S, (elapsed, startup_s)
