@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from catenary_linescan.camera import LineScanCamera, camera_from_pose
@@ -78,7 +78,11 @@ def test_ray_projects_back_to_its_pixel(pose: dict[str, float], u: list[float]):
 @given(pose=poses, x=st.floats(-600.0, 600.0), z=st.floats(1300.0, 2500.0))
 def test_point_lies_on_the_ray_of_its_projection(pose: dict[str, float], x: float, z: float):
     camera = camera_from_pose("cam", PIXELS, **pose)
-    origin, direction = camera.ray(camera.project(x, z))
+    u_px = camera.project(x, z)
+    # a point the camera sees: outside the sensor a strong barrel lens's model folds over
+    # (hypothesis found x -109, z 1300 mm at u -2331 px, where the inverse is ill-conditioned)
+    assume(0.0 <= u_px <= PIXELS - 1.0)
+    origin, direction = camera.ray(u_px)
     offset = np.array([x, z]) - origin
     along = offset @ direction
     across = offset[0] * direction[1] - offset[1] * direction[0]

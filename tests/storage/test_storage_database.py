@@ -183,7 +183,7 @@ def test_the_statement_timeout_bounds_interactive_commands_only(
 ) -> None:
     settings = Settings(database_url=database_url, data_dir=tmp_path, statement_timeout_s=1.5)
     with (
-        open_database(settings, migrated=False, batch=batch) as engine,
+        open_database(settings, migrated=False, create=True, batch=batch) as engine,
         engine.connect() as connection,
     ):
         if engine.dialect.name == "postgresql":
