@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any, Final
 
 import click
 
-from catenary.cli.app import INTERRUPTED_EXIT_CODE, app_of
+from catenary.cli.app import INTERRUPTED_EXIT_CODE, TERMINATED_EXIT_CODE, app_of
 from catenary.domain import DEFAULT_BLOCK_SCANS
 from catenary.errors import UserError
 
@@ -245,14 +245,14 @@ def record(
     if callable(summary):
         click.echo(str(summary()))
     if result.interrupted:
+        how = "terminated" if result.terminated else "interrupted"
         click.echo(
-            f"interrupted: kept {result.scans} scans in {result.path} "
-            "(complete up to the last block)"
+            f"{how}: kept {result.scans} scans in {result.path} (complete up to the last block)"
             if result.scans
-            else "interrupted before the first block: nothing recorded",
+            else f"{how} before the first block: nothing recorded",
             err=True,
         )
-        ctx.exit(INTERRUPTED_EXIT_CODE)
+        ctx.exit(TERMINATED_EXIT_CODE if result.terminated else INTERRUPTED_EXIT_CODE)
     click.echo(
         f"recorded {result.path}: {result.scans} scans, {result.vehicle_samples} vehicle "
         f"samples ({result.flagged_vehicle_samples} flagged)"

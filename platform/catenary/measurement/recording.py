@@ -26,13 +26,14 @@ How the sources combine
 
 Stopping
 --------
-At the source's end, after ``--max-scans``, or on Ctrl-C. Ctrl-C (SIGINT, or a
+At the source's end, after ``--max-scans``, or on Ctrl-C or SIGTERM. Either signal (or a
 ``KeyboardInterrupt`` from a source) while waiting on the source stops at once; arriving while
 a block is being written, it lets that block finish and stops after it, so the file never
 holds half a block. Either way the blocks written so far are kept, the vehicle samples up to
 the last scan are written, and the file is closed with its completion marker for the scans it
 holds; the command prints one line with the number of scans kept and exits with status 130
-(the shell's convention for Ctrl-C). An error (a source failing, bad data from a source) closes
+(the shell's convention for Ctrl-C; 143 for SIGTERM). SIGKILL leaves the blocks flushed
+before it, without the marker. An error (a source failing, bad data from a source) closes
 the file *without* the marker (it reads as interrupted) and is reported in one line saying how
 many scans were kept. A run file with no scan is removed (a source that gives no scan at all
 is an error).
@@ -141,7 +142,8 @@ class Recording:
     scans: int
     vehicle_samples: int
     flagged_vehicle_samples: int  # samples the source flagged (written as NaN)
-    interrupted: bool
+    interrupted: bool  # stopped by Ctrl-C or SIGTERM
+    terminated: bool = False  # stopped by SIGTERM
 
 
 class _VehicleWriter:
@@ -179,24 +181,26 @@ class _VehicleWriter:
 
 
 class _InterruptGuard:
-    """Ctrl-C during a recording.
+    """Ctrl-C and SIGTERM during a recording.
 
-    Installed as the SIGINT handler (in the main thread only). The first Ctrl-C sets
-    ``requested``; it also raises ``KeyboardInterrupt`` unless a write is under way
-    (:meth:`deferred`), in which case the recording stops after the write. Later ones only
-    set ``requested``, so the file is always closed properly.
+    Installed as the SIGINT and SIGTERM handler (in the main thread only). The first signal
+    sets ``requested`` (and ``terminated`` for SIGTERM); it also raises ``KeyboardInterrupt``
+    unless a write is under way (:meth:`deferred`), in which case the recording stops after
+    the write. Later ones only set ``requested``, so the file is always closed properly.
     """
 
     def __init__(self) -> None:
         self.requested = False
+        self.terminated = False
         self._deferring = 0
-        self._previous: Any = None
-        self._installed = False
+        self._previous: dict[int, Any] = {}
 
     def __enter__(self) -> Self:
         if threading.current_thread() is threading.main_thread():
-            self._previous = signal.signal(signal.SIGINT, self._handle)
-            self._installed = True
+            self._previous = {
+                number: signal.signal(number, self._handle)
+                for number in (signal.SIGINT, signal.SIGTERM)
+            }
         return self
 
     def __exit__(
@@ -205,14 +209,17 @@ class _InterruptGuard:
         exc: BaseException | None,
         tb: TracebackType | None,
     ) -> None:
-        if self._installed:
-            previous = self._previous if self._previous is not None else signal.default_int_handler
-            signal.signal(signal.SIGINT, previous)
-            self._installed = False
+        for number, previous in self._previous.items():
+            # None: a handler not installed from Python; SIGINT's is then Python's own
+            fallback = signal.default_int_handler if number == signal.SIGINT else signal.SIG_DFL
+            signal.signal(number, previous if previous is not None else fallback)
+        self._previous = {}
 
     def _handle(self, signum: int, frame: FrameType | None) -> None:
         first = not self.requested
         self.requested = True
+        if first:
+            self.terminated = signum == signal.SIGTERM
         if first and not self._deferring:
             raise KeyboardInterrupt
 
@@ -275,7 +282,8 @@ def record_run(
     scan_source, vehicle_source : str
         Names for messages (``"source 'simulator'"``).
 
-    Returns the :class:`Recording`; ``interrupted`` is true when Ctrl-C stopped it (the file
+    Returns the :class:`Recording`; ``interrupted`` is true when Ctrl-C or SIGTERM stopped it
+    (``terminated``: SIGTERM; the file
     is complete for the scans it holds). Errors: module docstring. The streams are not closed.
     """
     path = Path(path)
@@ -339,7 +347,9 @@ def record_run(
         raise DiskFull(path, writer.scans)
     if writer.scans == 0 and not guard.requested:
         raise UserError(f"{scan_source} gave no scans: nothing recorded")
-    return Recording(path, writer.scans, samples.samples, samples.flagged, guard.requested)
+    return Recording(
+        path, writer.scans, samples.samples, samples.flagged, guard.requested, guard.terminated
+    )
 
 
 def _stream_blocks(
