@@ -15,19 +15,14 @@ from sqlalchemy.engine import make_url
 
 from catenary.storage.models import Run, SpanMeasurement
 
+from ..conftest import SmallRun
 from .conftest import assert_refused, assert_succeeded, catenary
-from .process_support import SmallRun, make_small_run
 from .proxy_support import Proxy, proxy_for
 
 pytestmark = pytest.mark.parametrize("database_url", ["postgresql"], indirect=True)
 
 PASSWORD = "s3cret-pw"
 MARGIN_S = 2.0  # what a loaded machine adds to a timeout, beyond the command's own start
-
-
-@pytest.fixture(scope="module")
-def small_run(tmp_path_factory: pytest.TempPathFactory) -> SmallRun:
-    return make_small_run(tmp_path_factory.mktemp("small"))
 
 
 @pytest.fixture

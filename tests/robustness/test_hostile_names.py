@@ -18,8 +18,8 @@ from sqlalchemy.orm import Session
 from catenary.storage.database import make_engine
 from catenary.storage.models import Alert, Line, Mast, Run, SpanMeasurement, Track, Vehicle
 
+from ..conftest import SmallRun
 from .conftest import assert_succeeded, catenary
-from .hardening_support import SmallRun, small_run
 
 HOSTILE_MASTS = (
     "M\x1b]0;owned\x07",  # OSC: retitles a terminal
@@ -42,17 +42,15 @@ ROUNDED = re.compile(r"-?\d+(\.\d{1,3})?")
 
 
 @pytest.fixture(scope="module")
-def hostile(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def hostile(small_run: SmallRun, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A folder with a database (``catenary.sqlite``) holding the small run processed, its
     names replaced by hostile ones and an open alert on each span, and its data directory
     (``data``)."""
-    run: SmallRun = small_run(tmp_path_factory)
     folder = tmp_path_factory.mktemp("hostile")
     url = f"sqlite:///{folder / 'catenary.sqlite'}"
     env = {"CATENARY_DATA_DIR": str(folder / "data")}
     assert_succeeded(catenary("--db", url, "db", "upgrade", env=env))
-    process = ["process", run.run, "--rig", run.rig, "--masts", run.masts]
-    assert_succeeded(catenary("--db", url, *process, env=env))
+    assert_succeeded(catenary(*small_run.process_args(url), env=env))
     engine = make_engine(url)
     with Session(engine) as session, session.begin():
         _rename(session)
