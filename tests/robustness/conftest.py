@@ -17,6 +17,9 @@ from pathlib import Path
 from typing import IO
 
 import pytest
+from hypothesis import HealthCheck, settings
+
+from catenary.errors import UserError
 
 # the start of a terminal escape sequence (ESC, or the 8-bit CSI/OSC) never reaches a terminal raw
 RAW_ESCAPES = ("\x1b", "\x9b", "\x9d")
@@ -85,6 +88,32 @@ def finished(
 
 def _command(args: Sequence[str | os.PathLike[str]]) -> list[str]:
     return [sys.executable, "-m", "catenary.cli", *map(str, args)]
+
+
+@pytest.fixture(scope="module")
+def examples_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder of the module's own for the files of hypothesis examples (which share the
+    fixtures of their test: a function-scoped one is refused)."""
+    return tmp_path_factory.mktemp("examples")
+
+
+def examples(max_examples: int) -> settings:
+    """Hypothesis settings of a property test here: ``max_examples`` examples, the same ones
+    at every run, each within 5 s, however slow their generation."""
+    return settings(
+        max_examples=max_examples,
+        deadline=5000,
+        derandomize=True,
+        suppress_health_check=[HealthCheck.too_slow],
+    )
+
+
+def assert_names_file(error: UserError, path: Path) -> str:
+    """Check that ``error`` (a file refused) is one line starting with ``path``; return it."""
+    message = str(error)
+    assert "\n" not in message, message
+    assert message.startswith(f"{path}: "), message
+    return message
 
 
 def assert_refused(
