@@ -243,8 +243,25 @@ class Build:
         values.update(columns)
         return Alert(**values)
 
+    @staticmethod
+    def alert_on(span: SpanMeasurement, **columns: Any) -> Alert:
+        """An alert on a stored span: its track, wire, masts and chainages, and its lowest
+        residual thickness as the value; ``columns`` give the rest."""
+        return Alert(
+            track_id=span.track_id,
+            wire=span.wire,
+            mast_from=span.mast_from,
+            mast_to=span.mast_to,
+            start_chainage_m=span.start_chainage_m,
+            end_chainage_m=span.end_chainage_m,
+            span_measurement_id=span.id,
+            value=span.min_residual_thickness_mm,
+            **columns,
+        )
+
 
 @pytest.fixture
 def build() -> type[Build]:
-    """Row builders (``build.run(session)``, ``build.span(run)``, ``build.alert(...)``)."""
+    """Row builders (``build.run(session)``, ``build.span(run)``, ``build.alert(...)``,
+    ``build.alert_on(span, ...)``)."""
     return Build

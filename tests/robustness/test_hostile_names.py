@@ -16,9 +16,9 @@ from sqlalchemy import Engine, update
 from sqlalchemy.orm import Session
 
 from catenary.storage.database import make_engine
-from catenary.storage.models import Alert, Line, Mast, Run, SpanMeasurement, Track, Vehicle
+from catenary.storage.models import Alert, Line, Mast, SpanMeasurement, Track, Vehicle
 
-from ..conftest import SmallRun
+from ..conftest import Build, SmallRun
 from .conftest import assert_succeeded, catenary
 
 HOSTILE_MASTS = (
@@ -78,20 +78,11 @@ def _rename(session: Session) -> None:
 
 
 def _alert(span: SpanMeasurement, number: int) -> Alert:
-    run = span.run
-    assert isinstance(run, Run) and run.track_id is not None
-    return Alert(
-        track_id=run.track_id,
-        wire=span.wire,
-        mast_from=span.mast_from,
-        mast_to=span.mast_to,
-        start_chainage_m=span.start_chainage_m,
-        end_chainage_m=span.end_chainage_m,
-        span_measurement_id=span.id,
+    return Build.alert_on(
+        span,
         rule="<i>policy</i>\r\n\x1b[1m#1",
         level="urgent",
         kind="threshold",
-        value=span.min_residual_thickness_mm,
         threshold=span.min_residual_thickness_mm + 0.5,
         condition_key=f"hostile-{number}",
         details={"action": "=cmd|'/C calc'!A0 \x1b[2J<img src=x onerror=alert(1)>"},
