@@ -4,7 +4,8 @@
 CI gives one. Each PostgreSQL test gets a schema of its own (``search_path`` set in the URL),
 dropped with everything in it, ``alembic_version`` included, when the test ends: tests never
 see each other's tables, nor leave any for other suites. ``build`` makes valid rows (a run
-on a line, track, vehicle and calibration; span measurements; alerts).
+on a line, track, vehicle and calibration; span measurements; alerts). ``small_run`` and
+``second_small_run`` are short simulated runs with a rig calibration, made once per worker.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 import os
 import uuid
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
@@ -98,6 +100,56 @@ def make_settings(tmp_path: Path, database_url: str) -> Callable[[dict[str, Any]
         return load_settings(config_path=path, database_url=database_url)
 
     return make
+
+
+@dataclass(frozen=True)
+class SmallRun:
+    """A recorded run file, its mast register and a rig calibration for it."""
+
+    run: Path
+    masts: Path
+    rig: Path
+
+    def process_args(self, database_url: str) -> list[str]:
+        """``catenary`` arguments that process this run into ``database_url``."""
+        return [
+            "process", str(self.run), "--rig", str(self.rig), "--masts", str(self.masts),
+            "--db", database_url,
+        ]  # fmt: skip
+
+
+def make_small_run(folder: Path, *, seed: int = 3, rig: Path | None = None) -> SmallRun:
+    """A 60 m run at 160 km/h of ``demo-line`` track 1 (about 1,400 scans; ``process`` takes a
+    few seconds) in ``folder``, with ``rig`` or a rig calibrated from the demo captures."""
+    # imported here: the tests that use no run load neither the CLI nor the simulator
+    from click.testing import CliRunner
+
+    from catenary.cli import cli
+    from catenary_linescan.simulator import DEMO_RIG_PATH, load_rig, record_run
+    from catenary_linescan.simulator.captures import write_captures
+
+    run = folder / f"run-{seed}.h5"
+    record_run(run, {"length_m": 60.0, "speed_kmh": 160.0, "seed": seed})
+    if rig is None:
+        captures, _ = write_captures(folder / "captures.h5", load_rig(DEMO_RIG_PATH), seed=2)
+        rig = folder / "rig.toml"
+        result = CliRunner().invoke(
+            cli, ["calibrate", str(captures), "--vehicle", str(DEMO_RIG_PATH), "-o", str(rig)]
+        )
+        assert result.exit_code == 0, result.output
+    return SmallRun(run, run.with_suffix(".masts.csv"), rig)
+
+
+@pytest.fixture(scope="session")
+def small_run(tmp_path_factory: pytest.TempPathFactory) -> SmallRun:
+    """A small run (``make_small_run``), made once per worker; treat it as read-only."""
+    return make_small_run(tmp_path_factory.mktemp("small-run"))
+
+
+@pytest.fixture(scope="session")
+def second_small_run(small_run: SmallRun) -> SmallRun:
+    """Another run of the same line (seed 4) with ``small_run``'s rig; read-only too."""
+    return make_small_run(small_run.run.parent, seed=4, rig=small_run.rig)
 
 
 T0 = datetime(2024, 5, 6, 7, 8, 9, tzinfo=UTC)
@@ -191,8 +243,25 @@ class Build:
         values.update(columns)
         return Alert(**values)
 
+    @staticmethod
+    def alert_on(span: SpanMeasurement, **columns: Any) -> Alert:
+        """An alert on a stored span: its track, wire, masts and chainages, and its lowest
+        residual thickness as the value; ``columns`` give the rest."""
+        return Alert(
+            track_id=span.track_id,
+            wire=span.wire,
+            mast_from=span.mast_from,
+            mast_to=span.mast_to,
+            start_chainage_m=span.start_chainage_m,
+            end_chainage_m=span.end_chainage_m,
+            span_measurement_id=span.id,
+            value=span.min_residual_thickness_mm,
+            **columns,
+        )
+
 
 @pytest.fixture
 def build() -> type[Build]:
-    """Row builders (``build.run(session)``, ``build.span(run)``, ``build.alert(...)``)."""
+    """Row builders (``build.run(session)``, ``build.span(run)``, ``build.alert(...)``,
+    ``build.alert_on(span, ...)``)."""
     return Build

@@ -8,44 +8,20 @@ import sys
 import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pytest
-from click.testing import CliRunner
 from sqlalchemy import func, select
 
-from catenary.cli import cli
 from catenary.config import Settings
 from catenary.measurement.process import ProcessRequest, ProcessResult, process_run
 from catenary.plugins.manager import PluginRegistry
 from catenary.storage import migrate
 from catenary.storage.database import make_engine, session_scope
 from catenary.storage.models import Run
-from catenary_linescan.simulator import DEMO_RIG_PATH, load_rig, record_run
-from catenary_linescan.simulator.captures import write_captures
 
-
-@dataclass(frozen=True)
-class SmallRun:
-    run: Path
-    masts: Path
-    rig: Path
-
-
-@pytest.fixture(scope="module")
-def small_run(tmp_path_factory: pytest.TempPathFactory) -> SmallRun:
-    folder = tmp_path_factory.mktemp("small")
-    run = folder / "run.h5"
-    record_run(run, {"length_m": 60.0, "speed_kmh": 160.0, "seed": 3})
-    captures, _ = write_captures(folder / "captures.h5", load_rig(DEMO_RIG_PATH), seed=2)
-    rig = folder / "rig.toml"
-    result = CliRunner().invoke(
-        cli, ["calibrate", str(captures), "--vehicle", str(DEMO_RIG_PATH), "-o", str(rig)]
-    )
-    assert result.exit_code == 0, result.output
-    return SmallRun(run, run.with_suffix(".masts.csv"), rig)
+from ..conftest import SmallRun
 
 
 @pytest.fixture
@@ -94,9 +70,8 @@ def test_both_checked_before_either_stored(small_run: SmallRun, settings: Settin
 def test_two_commands_at_once(small_run: SmallRun, settings: Settings) -> None:
     command = [
         str(Path(sys.executable).parent / "catenary"),
-        "process", str(small_run.run), "--rig", str(small_run.rig),
-        "--masts", str(small_run.masts), "--db", settings.database_url,
-    ]  # fmt: skip
+        *small_run.process_args(settings.database_url),
+    ]
     processes = [
         subprocess.Popen(
             command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ

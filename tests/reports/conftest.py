@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import pytest
 from click.testing import CliRunner, Result
@@ -21,7 +22,7 @@ from sqlalchemy.orm import Session
 from catenary.cli import cli
 from catenary.storage import migrate
 from catenary.storage.database import make_engine
-from catenary.storage.models import Alert, Base, MaintenanceAction, SpanMeasurement
+from catenary.storage.models import Base, MaintenanceAction, SpanMeasurement
 from catenary_linescan.simulator import DEMO_RIG_PATH, load_rig, record_run
 from catenary_linescan.simulator.captures import write_captures
 
@@ -123,7 +124,7 @@ def config(stored: Stored) -> Path:
 
 
 @pytest.fixture
-def alerts(database: str) -> str:
+def alerts(database: str, build: Any) -> str:
     """``database`` with open, acknowledged and resolved alerts on run 2's spans, and a splice.
 
     Alert 1: critical threshold, masts 12/02 to 12/03 wire 0 (the overlap, minimum at mast
@@ -147,20 +148,12 @@ def alerts(database: str) -> str:
             }
 
         def alert(key: tuple[str, int], level: str, kind: str, **extra: object) -> None:
-            span = spans[key]
             session.add(
-                Alert(
-                    track_id=span.track_id,
-                    wire=span.wire,
-                    mast_from=span.mast_from,
-                    mast_to=span.mast_to,
-                    start_chainage_m=span.start_chainage_m,
-                    end_chainage_m=span.end_chainage_m,
-                    span_measurement_id=span.id,
+                build.alert_on(
+                    spans[key],
                     rule=f"test-limits {level}",
                     level=level,
                     kind=kind,
-                    value=span.min_residual_thickness_mm,
                     threshold=extra.pop("threshold", 11.0),
                     raised_at=datetime(2025, 3, 1, 8, tzinfo=UTC),
                     condition_key=f"{key}-{level}-{kind}",

@@ -12,10 +12,14 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import IO
 
 import pytest
+from hypothesis import HealthCheck, settings
+
+from catenary.errors import UserError
 
 # the start of a terminal escape sequence (ESC, or the 8-bit CSI/OSC) never reaches a terminal raw
 RAW_ESCAPES = ("\x1b", "\x9b", "\x9d")
@@ -35,21 +39,81 @@ def catenary(
     cwd: Path | None = None,
     timeout: float = 120.0,
     input: str | None = None,
+    preexec_fn: Callable[[], None] | None = None,
 ) -> subprocess.CompletedProcess[str]:
     """Run ``catenary ARGS`` in a child process and return what it printed and its exit code.
 
     ``env`` adds to (or overrides) this process's environment, which the autouse fixture of
-    ``tests/conftest.py`` has already isolated.
+    ``tests/conftest.py`` has already isolated; ``preexec_fn`` is called in the child before
+    the command starts (``hardening_support.file_size_limit``, ``without_root_file_access``).
     """
     return subprocess.run(
-        [sys.executable, "-m", "catenary.cli", *map(str, args)],
+        _command(args),
         env={**os.environ, **(env or {})},
         cwd=cwd,
         capture_output=True,
         text=True,
         timeout=timeout,
         input=input,
+        preexec_fn=preexec_fn,
     )
+
+
+def start_catenary(
+    *args: str | os.PathLike[str],
+    env: Mapping[str, str] | None = None,
+    stdout: int | IO[str] = subprocess.PIPE,
+    stderr: int | IO[str] = subprocess.PIPE,
+) -> subprocess.Popen[str]:
+    """Start ``catenary ARGS`` in a child process, as ``catenary`` runs it, and return at once;
+    its output goes to ``stdout`` and ``stderr`` (pipes of text by default), its input is empty.
+    """
+    return subprocess.Popen(
+        _command(args),
+        env={**os.environ, **(env or {})},
+        stdin=subprocess.DEVNULL,
+        stdout=stdout,
+        stderr=stderr,
+        text=True,
+    )
+
+
+def finished(
+    process: subprocess.Popen[str], timeout: float = 120.0
+) -> subprocess.CompletedProcess[str]:
+    """What a started ``catenary`` printed and its exit code, once it has ended."""
+    out, err = process.communicate(timeout=timeout)
+    return subprocess.CompletedProcess(process.args, process.returncode, out, err)
+
+
+def _command(args: Sequence[str | os.PathLike[str]]) -> list[str]:
+    return [sys.executable, "-m", "catenary.cli", *map(str, args)]
+
+
+@pytest.fixture(scope="module")
+def examples_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A folder of the module's own for the files of hypothesis examples (which share the
+    fixtures of their test: a function-scoped one is refused)."""
+    return tmp_path_factory.mktemp("examples")
+
+
+def examples(max_examples: int) -> settings:
+    """Hypothesis settings of a property test here: ``max_examples`` examples, the same ones
+    at every run, each within 5 s, however slow their generation."""
+    return settings(
+        max_examples=max_examples,
+        deadline=5000,
+        derandomize=True,
+        suppress_health_check=[HealthCheck.too_slow],
+    )
+
+
+def assert_names_file(error: UserError, path: Path) -> str:
+    """Check that ``error`` (a file refused) is one line starting with ``path``; return it."""
+    message = str(error)
+    assert "\n" not in message, message
+    assert message.startswith(f"{path}: "), message
+    return message
 
 
 def assert_refused(

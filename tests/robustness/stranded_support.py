@@ -1,55 +1,22 @@
-"""Helpers of ``test_stranded_runs`` and ``test_concurrent_processing``: small simulated runs
-with their rig calibration, and third-party plugins installed for a child ``catenary`` alone
-(a package and its ``.dist-info`` on ``PYTHONPATH``, found through its entry point)."""
+"""Helpers of ``test_stranded_runs``: third-party plugins installed for a child ``catenary``
+alone (a package and its ``.dist-info`` on ``PYTHONPATH``, found through its entry point), and
+the default database's runs and alerts."""
 
 from __future__ import annotations
 
 import textwrap
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
 
-import pytest
-from click.testing import CliRunner
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from catenary.cli import cli
 from catenary.config import load_settings
 from catenary.storage import migrate
 from catenary.storage.database import make_engine, session_scope
 from catenary.storage.models import Alert, Run
 from catenary.storage.runs import pending_runs
-
-
-@dataclass(frozen=True)
-class SmallRuns:
-    """Two short runs of the same line (``demo-line`` track 1), each with its mast register,
-    and one rig calibration."""
-
-    runs: tuple[Path, Path]
-    masts: tuple[Path, Path]
-    rig: Path
-
-
-@pytest.fixture(scope="module")
-def small_runs(tmp_path_factory: pytest.TempPathFactory) -> SmallRuns:
-    from catenary_linescan.simulator import DEMO_RIG_PATH, load_rig, record_run
-    from catenary_linescan.simulator.captures import write_captures
-
-    folder = tmp_path_factory.mktemp("small-runs")
-    runs = folder / "first.h5", folder / "second.h5"
-    for seed, run in enumerate(runs, 3):
-        record_run(run, {"length_m": 60.0, "speed_kmh": 160.0, "seed": seed})
-    captures, _ = write_captures(folder / "captures.h5", load_rig(DEMO_RIG_PATH), seed=2)
-    rig = folder / "rig.toml"
-    result = CliRunner().invoke(
-        cli, ["calibrate", str(captures), "--vehicle", str(DEMO_RIG_PATH), "-o", str(rig)]
-    )
-    assert result.exit_code == 0, result.output
-    masts = runs[0].with_suffix(".masts.csv"), runs[1].with_suffix(".masts.csv")
-    return SmallRuns(runs, masts, rig)
 
 
 def install_plugin(folder: Path, name: str, source: str) -> dict[str, str]:

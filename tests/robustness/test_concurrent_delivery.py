@@ -6,8 +6,6 @@ hung ones are retried later, and no pass prints a traceback. On SQLite and Postg
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 import threading
 from collections import Counter
 from collections.abc import Iterator
@@ -23,7 +21,7 @@ from sqlalchemy import Engine, select, update
 from catenary.storage.database import session_scope
 from catenary.storage.models import AlertNotification, Line, Track
 
-from .conftest import assert_succeeded, catenary
+from .conftest import assert_succeeded, catenary, finished, start_catenary
 
 ALERTS = 3
 HANG_TIMEOUT_S = 2
@@ -100,26 +98,19 @@ def config(tmp_path: Path, receiver: Receiver) -> Path:
 def test_three_passes_at_once_send_each_notification_once(
     engine: Engine, database_url: str, alert_ids: list[int], receiver: Receiver, tmp_path: Path
 ) -> None:
-    command = [
-        sys.executable, "-m", "catenary.cli", "--config", str(config(tmp_path, receiver)),
-        "notify", "deliver", "--db", database_url,
-    ]  # fmt: skip
-    passes = [
-        subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        for _ in range(3)
-    ]
-    outputs = [p.communicate(timeout=120) for p in passes]
-    for process, (out, err) in zip(passes, outputs, strict=True):
-        assert process.returncode == 0, out + err
-        assert "Traceback" not in out + err, out + err
+    command = ["--config", config(tmp_path, receiver), "notify", "deliver", "--db", database_url]
+    passes = [start_catenary(*command) for _ in range(3)]
+    results = [finished(process) for process in passes]
+    for result in results:
+        assert_succeeded(result)
     once = Counter(dict.fromkeys(alert_ids, 1))
     assert receiver.count("/ok") == once
     assert receiver.count("/fail") == once
     assert receiver.count("/hang") == once
     timed_out = sum(
-        out.count("timed out: 'webhook' had not returned after 2 s") for out, _ in outputs
+        result.stdout.count("timed out: 'webhook' had not returned after 2 s") for result in results
     )
-    assert timed_out == ALERTS, outputs
+    assert timed_out == ALERTS, results
 
     # later: the server answers again and the backoff has elapsed
     receiver.hanging.clear()

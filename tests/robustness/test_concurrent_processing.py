@@ -4,8 +4,6 @@ of them used to break a unique key: a traceback, and its run lost)."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import time
 import uuid
 from collections.abc import Callable
@@ -19,10 +17,8 @@ from sqlalchemy.engine import make_url
 from catenary.storage.database import session_scope
 from catenary.storage.models import Run
 
-from .conftest import assert_succeeded
-from .stranded_support import SmallRuns, small_runs
-
-__all__ = ["small_runs"]  # the fixture, used by name
+from ..conftest import SmallRun
+from .conftest import assert_succeeded, finished, start_catenary
 
 pytestmark = pytest.mark.slow  # the real CLI on simulated runs
 
@@ -35,7 +31,11 @@ def _wait_for(condition: Callable[[], bool], what: str, timeout_s: float = 60.0)
 
 
 def test_two_runs_of_a_new_track_processed_at_once_are_both_stored(
-    small_runs: SmallRuns, engine: Engine, database_url: str, isolated_environment: Path
+    small_run: SmallRun,
+    second_small_run: SmallRun,
+    engine: Engine,
+    database_url: str,
+    isolated_environment: Path,
 ) -> None:
     postgresql = engine.dialect.name == "postgresql"
     name = f"catenary-test-{uuid.uuid4().hex[:12]}"  # finds the processes' connections
@@ -64,13 +64,11 @@ def test_two_runs_of_a_new_track_processed_at_once_are_both_stored(
         # runs are written by nobody else until both processes wait in their stores
         holding.execute(sa.text("LOCK TABLE runs IN EXCLUSIVE MODE" if postgresql else "SELECT 1"))
         processes = [
-            subprocess.Popen(
-                [sys.executable, "-m", "catenary.cli", "process", run, "--rig", small_runs.rig,
-                 "--masts", small_runs.masts[0], "--db", url],
-                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            start_catenary(
+                "process", run, "--rig", small_run.rig, "--masts", small_run.masts, "--db", url
             )
-            for run in small_runs.runs
-        ]  # fmt: skip
+            for run in (small_run.run, second_small_run.run)
+        ]
         try:
             _wait_for(
                 lambda: both_wait() or any(p.poll() is not None for p in processes), "both wait"
@@ -80,8 +78,7 @@ def test_two_runs_of_a_new_track_processed_at_once_are_both_stored(
                 process.kill()
             raise
     for process in processes:
-        out, err = process.communicate(timeout=60)
-        assert_succeeded(subprocess.CompletedProcess(process.args, process.returncode, out, err))
+        assert_succeeded(finished(process, timeout=60))
     with session_scope(engine, read_only=True) as session:
         tracks = session.execute(sa.select(Run.track_id, Run.rig_calibration_id)).all()
     assert len(tracks) == 2 and len(set(tracks)) == 1  # one track, one calibration

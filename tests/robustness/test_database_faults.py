@@ -4,6 +4,7 @@ half-written, no password printed, and the next command working."""
 
 from __future__ import annotations
 
+import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,19 +16,14 @@ from sqlalchemy.engine import make_url
 
 from catenary.storage.models import Run, SpanMeasurement
 
+from ..conftest import SmallRun
 from .conftest import assert_refused, assert_succeeded, catenary
-from .process_support import SmallRun, make_small_run
 from .proxy_support import Proxy, proxy_for
 
 pytestmark = pytest.mark.parametrize("database_url", ["postgresql"], indirect=True)
 
 PASSWORD = "s3cret-pw"
 MARGIN_S = 2.0  # what a loaded machine adds to a timeout, beyond the command's own start
-
-
-@pytest.fixture(scope="module")
-def small_run(tmp_path_factory: pytest.TempPathFactory) -> SmallRun:
-    return make_small_run(tmp_path_factory.mktemp("small"))
 
 
 @pytest.fixture
@@ -53,10 +49,16 @@ def proxied(proxy: Proxy, database_url: str) -> str:
     return url.render_as_string(hide_password=False)
 
 
-def config(tmp_path: Path, **database: float) -> Path:
-    path = tmp_path / "config.toml"
-    path.write_text(tomli_w.dumps({"database": database}))
-    return path
+def alerts_list(
+    tmp_path: Path, url: str, **database: float
+) -> tuple[subprocess.CompletedProcess[str], float]:
+    """``catenary alerts list`` on ``url`` with these ``[database]`` settings: what it did, and
+    how long it took."""
+    config = tmp_path / "config.toml"
+    config.write_text(tomli_w.dumps({"database": database}))
+    start = time.monotonic()
+    result = catenary("--config", config, "alerts", "list", "--db", url)
+    return result, time.monotonic() - start
 
 
 def stored(database_url: str) -> tuple[int, int]:
@@ -75,12 +77,7 @@ def test_a_silent_server_at_connect(
     proxy: Proxy, database_url: str, tmp_path: Path, startup_s: float
 ) -> None:
     proxy.freeze()
-    start = time.monotonic()
-    result = catenary(
-        "--config", config(tmp_path, connect_timeout_s=2), "alerts", "list",
-        "--db", proxied(proxy, database_url),
-    )  # fmt: skip
-    elapsed = time.monotonic() - start
+    result, elapsed = alerts_list(tmp_path, proxied(proxy, database_url), connect_timeout_s=2)
     assert_refused(result, "cannot connect", f"127.0.0.1:{proxy.port}", secrets=[PASSWORD])
     assert elapsed < startup_s + 2 + MARGIN_S, (elapsed, startup_s)
 
@@ -107,12 +104,7 @@ def test_a_server_silent_mid_transaction_is_bounded_by_the_statement_timeout(
     proxy: Proxy, database_url: str, tmp_path: Path, startup_s: float
 ) -> None:
     proxy.freeze_on(b"FROM alerts")  # after connecting and checking the schema
-    start = time.monotonic()
-    result = catenary(
-        "--config", config(tmp_path, statement_timeout_s=1), "alerts", "list",
-        "--db", proxied(proxy, database_url),
-    )  # fmt: skip
-    elapsed = time.monotonic() - start
+    result, elapsed = alerts_list(tmp_path, proxied(proxy, database_url), statement_timeout_s=1)
     assert_refused(result, "did not answer within the statement timeout (1 s", secrets=[PASSWORD])
     # the timeout and its grace for a silent server
     assert elapsed < startup_s + 1 + 2 + MARGIN_S, (elapsed, startup_s)
@@ -123,11 +115,6 @@ def test_a_statement_waiting_on_a_lock_is_cancelled_by_the_server(
 ) -> None:
     with engine.connect() as holder:
         holder.execute(text("LOCK TABLE alerts IN ACCESS EXCLUSIVE MODE"))
-        start = time.monotonic()
-        result = catenary(
-            "--config", config(tmp_path, statement_timeout_s=1), "alerts", "list",
-            "--db", database_url,
-        )  # fmt: skip
-        elapsed = time.monotonic() - start
+        result, elapsed = alerts_list(tmp_path, database_url, statement_timeout_s=1)
     assert_refused(result, "did not answer within the statement timeout (1 s")
     assert elapsed < startup_s + 1 + MARGIN_S, (elapsed, startup_s)

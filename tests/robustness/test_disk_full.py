@@ -7,38 +7,26 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-import pytest
 from sqlalchemy import Engine
 
 from catenary.measurement.runfile import open_run
 from catenary.storage.database import make_engine
 
+from ..conftest import SmallRun
 from .conftest import assert_refused, assert_succeeded, catenary
-from .hardening_support import (
-    SmallRun,
-    catenary_limited,
-    file_size_limit,
-    row_counts,
-    small_run,
-)
+from .hardening_support import file_size_limit, row_counts
 
 BLOCK_SCANS = 128
 RECORD_LIMIT_BYTES = 24 << 20  # the simulated run needs about 40 MiB
 
 
-@pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory) -> SmallRun:
-    return small_run(tmp_path_factory)
-
-
 def test_a_recording_that_fills_the_disk_keeps_its_complete_blocks(
-    run: SmallRun, engine: Engine, database_url: str, tmp_path: Path
+    small_run: SmallRun, engine: Engine, database_url: str, tmp_path: Path
 ) -> None:
     out = tmp_path / "full.h5"
-    result = catenary_limited(
-        file_size_limit(RECORD_LIMIT_BYTES),
+    result = catenary(
         "record", out, "--source", "simulator", "--source-option", "length_m=120",
-        "--block-scans", str(BLOCK_SCANS),
+        "--block-scans", str(BLOCK_SCANS), preexec_fn=file_size_limit(RECORD_LIMIT_BYTES),
     )  # fmt: skip
     line = assert_refused(result, f"disk full writing {out} after ")
     found = re.search(r"after (\d+) scans: kept (\d+) complete scans$", line)
@@ -48,7 +36,7 @@ def test_a_recording_that_fills_the_disk_keeps_its_complete_blocks(
     with open_run(out) as recorded:
         assert recorded.complete and recorded.header.scans == kept
     processed = catenary(
-        "--db", database_url, "process", out, "--rig", run.rig, "--wire-type", "CTA120"
+        "--db", database_url, "process", out, "--rig", small_run.rig, "--wire-type", "CTA120"
     )
     assert_succeeded(processed)
     assert "stored as run " in processed.stdout
@@ -56,37 +44,26 @@ def test_a_recording_that_fills_the_disk_keeps_its_complete_blocks(
 
 
 def test_process_that_cannot_write_its_samples_leaves_nothing(
-    run: SmallRun, engine: Engine, database_url: str, isolated_environment: Path
+    small_run: SmallRun, engine: Engine, database_url: str, isolated_environment: Path
 ) -> None:
-    result = catenary_limited(
-        file_size_limit(40_000),
-        "--db",
-        database_url,
-        "process",
-        run.run,
-        "--rig",
-        run.rig,
-        "--masts",
-        run.masts,
-    )
+    process = small_run.process_args(database_url)
+    result = catenary(*process, preexec_fn=file_size_limit(40_000))
     assert_refused(result, str(isolated_environment / "samples"), "cannot write samples")
     assert not any(row_counts(engine).values())
     assert not list((isolated_environment / "samples").iterdir())  # no scratch file left
-    assert_succeeded(
-        catenary("--db", database_url, "process", run.run, "--rig", run.rig, "--masts", run.masts)
-    )
+    assert_succeeded(catenary(*process))
 
 
 def test_process_that_cannot_grow_its_sqlite_database_leaves_nothing(
-    run: SmallRun, tmp_path: Path, isolated_environment: Path
+    small_run: SmallRun, tmp_path: Path, isolated_environment: Path
 ) -> None:
     database = tmp_path / "catenary.sqlite"
     url = f"sqlite:///{database}"
     assert_succeeded(catenary("--db", url, "db", "upgrade"))
     engine = make_engine(url)
     before = row_counts(engine)
-    process = ["--db", url, "process", run.run, "--rig", run.rig, "--masts", run.masts]
-    result = catenary_limited(file_size_limit(database.stat().st_size), *process)
+    process = small_run.process_args(url)
+    result = catenary(*process, preexec_fn=file_size_limit(database.stat().st_size))
     assert_refused(result, f"database {database} cannot be written", "disk full")
     assert row_counts(engine) == before
     engine.dispose()
@@ -95,16 +72,15 @@ def test_process_that_cannot_grow_its_sqlite_database_leaves_nothing(
 
 
 def test_an_export_that_fills_the_disk_leaves_no_partial_file(
-    run: SmallRun, tmp_path: Path
+    small_run: SmallRun, tmp_path: Path
 ) -> None:
     url = f"sqlite:///{tmp_path / 'catenary.sqlite'}"
     assert_succeeded(catenary("--db", url, "db", "upgrade"))
-    assert_succeeded(
-        catenary("--db", url, "process", run.run, "--rig", run.rig, "--masts", run.masts)
-    )
+    assert_succeeded(catenary(*small_run.process_args(url)))
     out = tmp_path / "exports" / "samples.csv"
     out.parent.mkdir()
     export = ["--db", url, "export", "1", "--what", "samples", "-o", out]
-    assert_refused(catenary_limited(file_size_limit(20_000), *export), str(out), "cannot write")
+    limited = catenary(*export, preexec_fn=file_size_limit(20_000))
+    assert_refused(limited, str(out), "cannot write")
     assert not list(out.parent.iterdir())
     assert_succeeded(catenary(*export))

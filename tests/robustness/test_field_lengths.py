@@ -17,13 +17,9 @@ from sqlalchemy.orm import Session
 from catenary.domain import CODE_LENGTH, NAME_LENGTH
 from catenary.storage.models import Alert
 
+from ..conftest import SmallRun
 from .conftest import assert_refused, catenary
-from .hardening_support import SmallRun, row_counts, small_run
-
-
-@pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory) -> SmallRun:
-    return small_run(tmp_path_factory)
+from .hardening_support import row_counts
 
 
 def _process(run: SmallRun, *extra: str | Path, rig: Path | None = None) -> list[str | Path]:
@@ -81,10 +77,10 @@ CASES: dict[str, tuple[Callable[[SmallRun, Path], list[str | Path]], tuple[str, 
 
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_process_refuses_text_longer_than_its_column(
-    case: str, run: SmallRun, engine: Engine, database_url: str, tmp_path: Path
+    case: str, small_run: SmallRun, engine: Engine, database_url: str, tmp_path: Path
 ) -> None:
     make, words = CASES[case]
-    result = catenary("--db", database_url, *make(run, tmp_path), timeout=60)
+    result = catenary("--db", database_url, *make(small_run, tmp_path), timeout=60)
     assert_refused(result, *words)
     assert not any(row_counts(engine).values())
     assert not list((tmp_path / "catenary-data").glob("samples/*"))

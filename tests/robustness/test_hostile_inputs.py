@@ -17,13 +17,15 @@ from typing import Any
 
 import pytest
 import tomli_w
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 from catenary.errors import UserError
 from catenary.measurement.masts import read_register
 from catenary.measurement.vehicle import load_vehicle_geometry
 from catenary_linescan.rig import read_rig
+
+from .conftest import assert_names_file, examples
 
 VEHICLE: dict[str, Any] = {
     "name": "tiny",
@@ -116,49 +118,34 @@ def read_or_refuse(read: Callable[[Path], object], path: Path) -> None:
     try:
         read(path)
     except UserError as exc:
-        message = str(exc)
-        assert "\n" not in message, message
-        assert message.startswith(f"{path}: "), message
+        assert_names_file(exc, path)
 
 
-@pytest.fixture(scope="module")
-def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return tmp_path_factory.mktemp("hostile")
+HOSTILE = examples(60)
+DOCUMENTS: dict[str, tuple[dict[str, Any], Callable[[Path], object]]] = {
+    "rig": (RIG, read_rig),
+    "vehicle": (VEHICLE, load_vehicle_geometry),
+}
+"""A valid document of each kind, and what reads it."""
 
 
-HOSTILE = settings(
-    max_examples=60,
-    deadline=5000,
-    derandomize=True,
-    suppress_health_check=[HealthCheck.too_slow],
-)
+def test_the_valid_documents_are_read(examples_folder: Path) -> None:
+    (examples_folder / "rig.toml").write_text(tomli_w.dumps(RIG))
+    (examples_folder / "vehicle.toml").write_text(tomli_w.dumps(VEHICLE))
+    assert sorted(read_rig(examples_folder / "rig.toml").cameras) == ["a", "b"]
+    assert load_vehicle_geometry(examples_folder / "vehicle.toml").roof_height_mm == 3900.0
 
 
-def test_the_valid_documents_are_read(folder: Path) -> None:
-    (folder / "rig.toml").write_text(tomli_w.dumps(RIG))
-    (folder / "vehicle.toml").write_text(tomli_w.dumps(VEHICLE))
-    assert sorted(read_rig(folder / "rig.toml").cameras) == ["a", "b"]
-    assert load_vehicle_geometry(folder / "vehicle.toml").roof_height_mm == 3900.0
-
-
+@pytest.mark.parametrize("kind", sorted(DOCUMENTS))
 @HOSTILE
-@given(document=mutated(RIG))
-def test_a_hostile_rig_is_read_or_refused_in_one_line(
-    folder: Path, document: dict[str, Any]
+@given(data=st.data())
+def test_a_hostile_document_is_read_or_refused_in_one_line(
+    examples_folder: Path, kind: str, data: st.DataObject
 ) -> None:
-    path = folder / "rig.toml"
-    path.write_text(tomli_w.dumps(document))
-    read_or_refuse(read_rig, path)
-
-
-@HOSTILE
-@given(document=mutated(VEHICLE))
-def test_a_hostile_vehicle_is_read_or_refused_in_one_line(
-    folder: Path, document: dict[str, Any]
-) -> None:
-    path = folder / "vehicle.toml"
-    path.write_text(tomli_w.dumps(document))
-    read_or_refuse(load_vehicle_geometry, path)
+    valid, read = DOCUMENTS[kind]
+    path = examples_folder / f"{kind}.toml"
+    path.write_text(tomli_w.dumps(data.draw(mutated(valid), label=kind)))
+    read_or_refuse(read, path)
 
 
 @HOSTILE
@@ -170,10 +157,10 @@ def test_a_hostile_vehicle_is_read_or_refused_in_one_line(
     encoding=st.sampled_from(("utf-8", "utf-8-sig", "latin-1", "utf-16")),
 )
 def test_a_hostile_mast_register_is_read_or_refused_in_one_line(
-    folder: Path, header: list[str], rows: list[list[str]], encoding: str
+    examples_folder: Path, header: list[str], rows: list[list[str]], encoding: str
 ) -> None:
     text = io.StringIO()
     csv.writer(text).writerows([header, *rows])
-    path = folder / "masts.csv"
+    path = examples_folder / "masts.csv"
     path.write_bytes(text.getvalue().encode(encoding, errors="replace"))
     read_or_refuse(lambda p: read_register(p, wire_types=["CTA120"]), path)

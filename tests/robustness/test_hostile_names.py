@@ -16,10 +16,10 @@ from sqlalchemy import Engine, update
 from sqlalchemy.orm import Session
 
 from catenary.storage.database import make_engine
-from catenary.storage.models import Alert, Line, Mast, Run, SpanMeasurement, Track, Vehicle
+from catenary.storage.models import Alert, Line, Mast, SpanMeasurement, Track, Vehicle
 
+from ..conftest import Build, SmallRun
 from .conftest import assert_succeeded, catenary
-from .hardening_support import SmallRun, small_run
 
 HOSTILE_MASTS = (
     "M\x1b]0;owned\x07",  # OSC: retitles a terminal
@@ -42,17 +42,15 @@ ROUNDED = re.compile(r"-?\d+(\.\d{1,3})?")
 
 
 @pytest.fixture(scope="module")
-def hostile(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def hostile(small_run: SmallRun, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A folder with a database (``catenary.sqlite``) holding the small run processed, its
     names replaced by hostile ones and an open alert on each span, and its data directory
     (``data``)."""
-    run: SmallRun = small_run(tmp_path_factory)
     folder = tmp_path_factory.mktemp("hostile")
     url = f"sqlite:///{folder / 'catenary.sqlite'}"
     env = {"CATENARY_DATA_DIR": str(folder / "data")}
     assert_succeeded(catenary("--db", url, "db", "upgrade", env=env))
-    process = ["process", run.run, "--rig", run.rig, "--masts", run.masts]
-    assert_succeeded(catenary("--db", url, *process, env=env))
+    assert_succeeded(catenary(*small_run.process_args(url), env=env))
     engine = make_engine(url)
     with Session(engine) as session, session.begin():
         _rename(session)
@@ -80,20 +78,11 @@ def _rename(session: Session) -> None:
 
 
 def _alert(span: SpanMeasurement, number: int) -> Alert:
-    run = span.run
-    assert isinstance(run, Run) and run.track_id is not None
-    return Alert(
-        track_id=run.track_id,
-        wire=span.wire,
-        mast_from=span.mast_from,
-        mast_to=span.mast_to,
-        start_chainage_m=span.start_chainage_m,
-        end_chainage_m=span.end_chainage_m,
-        span_measurement_id=span.id,
+    return Build.alert_on(
+        span,
         rule="<i>policy</i>\r\n\x1b[1m#1",
         level="urgent",
         kind="threshold",
-        value=span.min_residual_thickness_mm,
         threshold=span.min_residual_thickness_mm + 0.5,
         condition_key=f"hostile-{number}",
         details={"action": "=cmd|'/C calc'!A0 \x1b[2J<img src=x onerror=alert(1)>"},

@@ -21,32 +21,20 @@ from sqlalchemy.orm import Session
 from catenary.storage.database import make_engine
 from catenary.storage.models import Alert, Run
 
+from ..conftest import SmallRun
 from .conftest import assert_refused, assert_succeeded, catenary
-from .hardening_support import (
-    SmallRun,
-    catenary_limited,
-    row_counts,
-    small_run,
-    without_root_file_access,
-)
+from .hardening_support import row_counts, without_root_file_access
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory: pytest.TempPathFactory) -> SmallRun:
-    return small_run(tmp_path_factory)
-
-
-@pytest.fixture(scope="module")
-def processed(run: SmallRun, tmp_path_factory: pytest.TempPathFactory) -> Path:
+def processed(small_run: SmallRun, tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A folder holding a database (``catenary.sqlite``) with the run processed, and its data
     directory (``data``): copied by each test."""
     folder = tmp_path_factory.mktemp("processed")
     url = f"sqlite:///{folder / 'catenary.sqlite'}"
     env = {"CATENARY_DATA_DIR": str(folder / "data")}
     assert_succeeded(catenary("--db", url, "db", "upgrade", env=env))
-    assert_succeeded(
-        catenary("--db", url, "process", run.run, "--rig", run.rig, "--masts", run.masts, env=env)
-    )
+    assert_succeeded(catenary(*small_run.process_args(url), env=env))
     return folder
 
 
@@ -84,17 +72,17 @@ def read_only(
 
 
 def _as_user(database: Path, *args: str | Path) -> subprocess.CompletedProcess[str]:
-    return catenary_limited(without_root_file_access, "--db", f"sqlite:///{database}", *args)
+    return catenary("--db", f"sqlite:///{database}", *args, preexec_fn=without_root_file_access)
 
 
 def test_writers_fail_in_one_line_and_leave_nothing(
-    read_only: tuple[Path, Engine, int], run: SmallRun, isolated_environment: Path
+    read_only: tuple[Path, Engine, int], small_run: SmallRun, isolated_environment: Path
 ) -> None:
     database, engine, alert_id = read_only
     before = row_counts(engine)
     samples = sorted((isolated_environment / "samples").iterdir())
     for args in (
-        ["process", run.run, "--rig", run.rig, "--masts", run.masts, "--replace"],
+        ["process", small_run.run, "--rig", small_run.rig, "--masts", small_run.masts, "--replace"],
         ["alerts", "ack", str(alert_id), "--by", "me"],
     ):
         assert_refused(_as_user(database, *args), f"database {database} is read-only")

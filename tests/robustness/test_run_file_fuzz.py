@@ -23,12 +23,13 @@ from typing import Any
 
 import h5py
 import numpy as np
-import pytest
-from hypothesis import HealthCheck, event, given, settings
+from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
 from catenary.errors import UserError
 from catenary.measurement.runfile import RunFileWarning, RunFileWriter, open_run
+
+from .conftest import assert_names_file, examples
 
 EXAMPLE_TIME_LIMIT_S = 10
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
@@ -253,28 +254,13 @@ def read_or_refuse(path: Path, field: str | None) -> None:
                 next(run.blocks(64), None)
         event("read")
     except UserError as exc:
-        message = str(exc)
         event("refused")
-        assert "\n" not in message, message
-        assert message.startswith(f"{path}: "), message
+        message = assert_names_file(exc, path)
         if field is not None:
             assert field in message, (field, message)
 
 
-@pytest.fixture(scope="module")
-def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return tmp_path_factory.mktemp("fuzz")
-
-
-FUZZ = settings(
-    max_examples=150,
-    deadline=5000,
-    derandomize=True,
-    suppress_health_check=[HealthCheck.too_slow],
-)
-
-
-@FUZZ
+@examples(150)
 @given(
     scans=st.integers(0, 40),
     samples=st.integers(0, 20),
@@ -285,14 +271,14 @@ FUZZ = settings(
     ),
 )
 def test_a_mutated_run_file_is_read_or_refused_in_one_line(
-    folder: Path,
+    examples_folder: Path,
     scans: int,
     samples: int,
     changes: list[Mutation],
     truncate: float | None,
     garble: list[tuple[int, bytes]],
 ) -> None:
-    path = folder / "run.h5"
+    path = examples_folder / "run.h5"
     path.unlink(missing_ok=True)
     write_valid(path, scans, samples)
     clean = True  # every change applied whole
@@ -316,8 +302,8 @@ def test_a_mutated_run_file_is_read_or_refused_in_one_line(
 @settings(max_examples=30, deadline=5000, derandomize=True)
 @given(content=st.binary(max_size=600).flatmap(lambda b: st.sampled_from((b, HDF5_SIGNATURE + b))))
 def test_bytes_that_are_not_a_run_file_are_refused_in_one_line(
-    folder: Path, content: bytes
+    examples_folder: Path, content: bytes
 ) -> None:
-    path = folder / "bytes.h5"
+    path = examples_folder / "bytes.h5"
     path.write_bytes(content)
     read_or_refuse(path, None)

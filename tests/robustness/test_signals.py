@@ -8,7 +8,6 @@ from __future__ import annotations
 import signal
 import sqlite3
 import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
@@ -21,13 +20,8 @@ import pytest
 from catenary.storage import migrate
 from catenary.storage.database import make_engine
 
-from .conftest import assert_succeeded, catenary
-from .process_support import SmallRun, make_small_run
-
-
-@pytest.fixture(scope="module")
-def small_run(tmp_path_factory: pytest.TempPathFactory) -> SmallRun:
-    return make_small_run(tmp_path_factory.mktemp("small"))
+from ..conftest import SmallRun
+from .conftest import assert_succeeded, catenary, start_catenary
 
 
 @pytest.fixture
@@ -107,11 +101,8 @@ def test_a_signal_during_process(
 ) -> None:
     url = f"sqlite:///{database}"
     samples = isolated_environment / "samples"
-    command = [sys.executable, "-m", "catenary.cli", *small_run.process_args(url)]
     with write_lock(database) if when == "store" else nullcontext():
-        process = subprocess.Popen(
-            command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
-        )
+        process = start_catenary(*small_run.process_args(url))
         try:
             wait_for(when, samples, process)
             process.send_signal(getattr(signal, name))

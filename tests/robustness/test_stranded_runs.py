@@ -7,45 +7,40 @@ from __future__ import annotations
 import re
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 import sqlalchemy as sa
 
-from .conftest import assert_refused, assert_succeeded, catenary
+from ..conftest import SmallRun
+from .conftest import assert_refused, assert_succeeded, catenary, start_catenary
 from .stranded_support import (
     BROKEN_WIRE_TYPE,
     KILLED_AFTER_COMMIT,
-    SmallRuns,
     alerting_config,
     default_database,
     install_plugin,
-    small_runs,
     stored_runs,
 )
-
-__all__ = ["small_runs"]  # the fixture, used by name
 
 pytestmark = pytest.mark.slow  # the real CLI on simulated runs
 
 
 def _process(
-    runs: SmallRuns, config: Path, env: dict[str, str] | None = None
+    run: SmallRun, config: Path, env: dict[str, str] | None = None
 ) -> subprocess.CompletedProcess[str]:
     return catenary(
-        "--config", config, "process", runs.runs[0], "--rig", runs.rig,
-        "--masts", runs.masts[0], env=env,
-    )  # fmt: skip
+        "--config", config, "process", run.run, "--rig", run.rig, "--masts", run.masts, env=env
+    )
 
 
-def _killed_after_its_commit(runs: SmallRuns, tmp_path: Path) -> Path:
+def _killed_after_its_commit(run: SmallRun, tmp_path: Path) -> Path:
     """Process the first run with a plugin that kills the process right after its commit;
     return the config (a policy that raises an alert on every span)."""
     config = alerting_config(tmp_path)
     killer = install_plugin(tmp_path / "killer", "killer", KILLED_AFTER_COMMIT)
-    killed = _process(runs, config, env=killer)
+    killed = _process(run, config, env=killer)
     assert killed.returncode == -signal.SIGKILL, killed.stdout + killed.stderr
     assert stored_runs() == ([1], [1], 0)  # stored, pending
     return config
@@ -58,9 +53,9 @@ def _new_alerts(output: str) -> int:
 
 
 def test_a_run_killed_before_its_alerts_is_evaluated_by_the_next_evaluate_all(
-    small_runs: SmallRuns, tmp_path: Path
+    small_run: SmallRun, tmp_path: Path
 ) -> None:
-    config = _killed_after_its_commit(small_runs, tmp_path)
+    config = _killed_after_its_commit(small_run, tmp_path)
     evaluated = catenary("--config", config, "alerts", "evaluate", "--all")
     assert_succeeded(evaluated)
     assert "1 run(s) evaluated for the first time" in evaluated.stdout
@@ -69,10 +64,10 @@ def test_a_run_killed_before_its_alerts_is_evaluated_by_the_next_evaluate_all(
 
 
 def test_a_run_killed_before_its_alerts_is_evaluated_by_processing_it_again(
-    small_runs: SmallRuns, tmp_path: Path
+    small_run: SmallRun, tmp_path: Path
 ) -> None:
-    config = _killed_after_its_commit(small_runs, tmp_path)
-    again = _process(small_runs, config)
+    config = _killed_after_its_commit(small_run, tmp_path)
+    again = _process(small_run, config)
     assert_succeeded(again)
     first, alerts = again.stdout.splitlines()[:2]
     assert first.endswith(
@@ -83,12 +78,14 @@ def test_a_run_killed_before_its_alerts_is_evaluated_by_processing_it_again(
     assert stored_runs() == ([1], [], _new_alerts(alerts))
 
 
-def test_one_broken_track_does_not_stop_the_others(small_runs: SmallRuns, tmp_path: Path) -> None:
+def test_one_broken_track_does_not_stop_the_others(
+    small_run: SmallRun, second_small_run: SmallRun, tmp_path: Path
+) -> None:
     config = alerting_config(tmp_path)
     plugin = install_plugin(tmp_path / "plugin", "broken_wires", BROKEN_WIRE_TYPE)
     # a run of the broken wire type: stored, its alerts fail, named in one line
     broken = catenary(
-        "--config", config, "process", small_runs.runs[0], "--rig", small_runs.rig,
+        "--config", config, "process", small_run.run, "--rig", small_run.rig,
         "--line", "L1", "--track", "1", "--wire-type", "BROKEN", env=plugin,
     )  # fmt: skip
     assert_refused(
@@ -99,8 +96,8 @@ def test_one_broken_track_does_not_stop_the_others(small_runs: SmallRuns, tmp_pa
     no_policy = tmp_path / "no-policy.toml"
     no_policy.write_text("")
     other = catenary(
-        "--config", no_policy, "process", small_runs.runs[1], "--rig", small_runs.rig,
-        "--masts", small_runs.masts[1], env=plugin,
+        "--config", no_policy, "process", second_small_run.run, "--rig", second_small_run.rig,
+        "--masts", second_small_run.masts, env=plugin,
     )  # fmt: skip
     assert_succeeded(other)
     assert stored_runs() == ([1, 2], [1, 2], 0)
@@ -114,20 +111,19 @@ def test_one_broken_track_does_not_stop_the_others(small_runs: SmallRuns, tmp_pa
 
 
 def test_a_process_killed_before_its_commit_leaves_no_samples_file_for_the_next_one(
-    small_runs: SmallRuns, tmp_path: Path, isolated_environment: Path
+    small_run: SmallRun, tmp_path: Path, isolated_environment: Path
 ) -> None:
     """``kill -9`` once the samples file has the run's name but before the commit (SQLite's
     commit waits for a reader to finish): no row, and the next ``process`` removes the file
     the killed one named for its run, and stores the run with one samples file."""
     config = alerting_config(tmp_path)
     samples = isolated_environment / "samples"
-    command = [
-        sys.executable, "-m", "catenary.cli", "--config", config, "process", small_runs.runs[0],
-        "--rig", small_runs.rig, "--masts", small_runs.masts[0],
-    ]  # fmt: skip
     with default_database(read_only=True) as reading:
         reading.execute(sa.text("SELECT count(*) FROM runs"))  # a reader: the commit waits
-        killed = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        killed = start_catenary(
+            "--config", config, "process", small_run.run, "--rig", small_run.rig,
+            "--masts", small_run.masts, stderr=subprocess.STDOUT,
+        )  # fmt: skip
         try:
             deadline = time.monotonic() + 60.0
             while not list(samples.glob("run-*.parquet")):
@@ -138,7 +134,7 @@ def test_a_process_killed_before_its_commit_leaves_no_samples_file_for_the_next_
             killed.kill()
             killed.communicate()
     assert stored_runs() == ([], [], 0)
-    again = _process(small_runs, config)
+    again = _process(small_run, config)
     assert_succeeded(again)
     assert stored_runs()[0] == [1]
     (line,) = [line for line in again.stdout.splitlines() if line.startswith("samples")]

@@ -19,14 +19,14 @@ from pathlib import Path
 import pytest
 import tomli_w
 from sqlalchemy import Engine, update
-from sqlalchemy.engine import make_url
 
 from catenary.storage.database import session_scope
 from catenary.storage.leases import database_now
 from catenary.storage.models import SchedulerLease
 
 from .conftest import RAW_ESCAPES
-from .two_schedulers_support import ACQUIRED, RAN, Proxy, Scheduler, wait_for_holder
+from .proxy_support import proxy_for
+from .two_schedulers_support import ACQUIRED, RAN, Scheduler, wait_for_holder
 
 LEASE_S = 3.0
 HEARTBEAT_S = 0.5
@@ -153,11 +153,8 @@ def test_a_holder_whose_lease_is_taken_pauses_its_jobs_until_it_holds_it_again(
 def test_a_holder_cut_off_from_its_database_pauses_and_the_standby_takes_over(
     start: Callable[..., Scheduler], database_url: str
 ) -> None:
-    url = make_url(database_url)
-    proxy = Proxy((url.host or "127.0.0.1", url.port or 5432))
-    try:
-        through_proxy = url.set(host="127.0.0.1", port=proxy.port)
-        cut_off = start("cut-off", through_proxy.render_as_string(hide_password=False))
+    with proxy_for(database_url) as proxy:
+        cut_off = start("cut-off", proxy.url(database_url))
         cut_off.wait_for(ACQUIRED)
         standby = start("standby")
         standby.wait_for(standby_line(cut_off))
@@ -180,8 +177,6 @@ def test_a_holder_cut_off_from_its_database_pauses_and_the_standby_takes_over(
         cut_off.wait_for(standby_line(standby))
         assert cut_off.stop(signal.SIGTERM) == 0, cut_off.text()
         assert standby.stop(signal.SIGTERM) == 0, standby.text()
-    finally:
-        proxy.close()
     fire_times = cut_off.fire_times() + standby.fire_times()
     assert len(set(fire_times)) == len(fire_times)
     assert_clean(standby)

@@ -1,21 +1,17 @@
 """Helpers of ``test_two_schedulers.py``: ``catenary scheduler`` in a child process, read through
-its log, and a TCP proxy on 127.0.0.1 that a test cuts to take a database away from one process
-(the shared PostgreSQL server itself is never touched)."""
+its log."""
 
 from __future__ import annotations
 
-import contextlib
-import os
 import re
-import socket
 import subprocess
-import sys
-import threading
 import time
 from collections.abc import Callable
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TypeVar
+
+from .conftest import start_catenary
 
 ACQUIRED = "scheduler lease acquired by this process"
 RAN = re.compile(r"job 'tick' ran for (\S+)")
@@ -30,12 +26,8 @@ class Scheduler:
     def __init__(self, args: list[str], log: Path) -> None:
         self.log = log
         self._handle = log.open("w")
-        self.process = subprocess.Popen(
-            [sys.executable, "-m", "catenary.cli", *args, "scheduler"],
-            env={**os.environ, "TZ": "UTC"},
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=self._handle,
+        self.process = start_catenary(
+            *args, "scheduler", env={"TZ": "UTC"}, stdout=subprocess.DEVNULL, stderr=self._handle
         )
         self.pid = self.process.pid
 
@@ -95,68 +87,3 @@ def wait_for_holder(candidates: list[Scheduler], timeout_s: float = 30.0) -> Sch
         time.sleep(0.05)
     assert len(holders) == 1, [holder.text() for holder in holders]
     return holders[0]
-
-
-class Proxy:
-    """A TCP proxy from a port of 127.0.0.1 to ``upstream``. ``cut()`` closes every connection
-    through it and closes new ones at once (the database is gone for whoever uses the proxy);
-    ``restore()`` lets new ones through again."""
-
-    def __init__(self, upstream: tuple[str, int]) -> None:
-        self._upstream = upstream
-        self._listener = socket.create_server(("127.0.0.1", 0))
-        self.port = int(self._listener.getsockname()[1])
-        self._cut = threading.Event()
-        self._lock = threading.Lock()
-        self._open: set[socket.socket] = set()
-        threading.Thread(target=self._accept, name="proxy", daemon=True).start()
-
-    def _accept(self) -> None:
-        while True:
-            try:
-                client, _ = self._listener.accept()
-            except OSError:  # closed
-                return
-            if self._cut.is_set():
-                client.close()
-                continue
-            try:
-                server = socket.create_connection(self._upstream, timeout=10)
-            except OSError:
-                client.close()
-                continue
-            server.settimeout(None)
-            with self._lock:
-                self._open |= {client, server}
-            for source, sink in ((client, server), (server, client)):
-                threading.Thread(target=_pump, args=(source, sink), daemon=True).start()
-
-    def cut(self) -> None:
-        self._cut.set()
-        with self._lock:
-            sockets, self._open = self._open, set()
-        for sock in sockets:
-            _close(sock)
-
-    def restore(self) -> None:
-        self._cut.clear()
-
-    def close(self) -> None:
-        self.cut()
-        _close(self._listener)  # shutdown wakes the accepting thread
-
-
-def _pump(source: socket.socket, sink: socket.socket) -> None:
-    try:
-        while data := source.recv(65536):
-            sink.sendall(data)
-    except OSError:
-        pass
-    _close(source)
-    _close(sink)
-
-
-def _close(sock: socket.socket) -> None:
-    with contextlib.suppress(OSError):
-        sock.shutdown(socket.SHUT_RDWR)
-    sock.close()

@@ -32,8 +32,7 @@ from dataclasses import dataclass, field
 from datetime import datetime, timedelta
 from typing import Any
 
-from sqlalchemy import ColumnElement, and_, insert, or_, select, update
-from sqlalchemy.dialects import postgresql, sqlite
+from sqlalchemy import ColumnElement, and_, or_, select, update
 from sqlalchemy.orm import Session, joinedload
 
 from catenary.config import Settings
@@ -42,6 +41,7 @@ from catenary.limits import LEVELS
 from catenary.plugins import PluginRegistry
 from catenary.plugins.manager import PluginFailure, plugin_errors
 from catenary.plugins.types import AlertRecord, Notifier
+from catenary.storage.inserts import insert_new
 from catenary.storage.models import NAME_LENGTH, Alert, AlertNotification, Track, utc_now
 
 SessionFactory = Callable[[], AbstractContextManager[Session]]
@@ -173,12 +173,6 @@ def _check_channel(where: str, channel: Channel, registry: PluginRegistry) -> No
             raise UserError(f"{where}: notification channel {channel.name!r}: {message}") from None
 
 
-_INSERTS: dict[str, Callable[..., Any]] = {
-    "postgresql": postgresql.insert,
-    "sqlite": sqlite.insert,
-}
-
-
 def queue_notifications(session: Session, config: NotificationConfig) -> int:
     """Add a pending delivery for each open alert and each channel that wants its level and
     has none yet; return how many were found missing.
@@ -187,10 +181,6 @@ def queue_notifications(session: Session, config: NotificationConfig) -> int:
     transaction added first is left alone (``ON CONFLICT DO NOTHING``). Call it in the
     transaction that raises the alerts, or any time later.
     """
-    make_insert = _INSERTS.get(session.get_bind().dialect.name, insert)
-    statement = make_insert(AlertNotification)
-    if make_insert is not insert:
-        statement = statement.on_conflict_do_nothing()
     found = 0
     for channel in config.channels:
         queued = (
@@ -208,7 +198,7 @@ def queue_notifications(session: Session, config: NotificationConfig) -> int:
         ).all()
         if alert_ids:
             rows = [{"alert_id": alert_id, "notifier": channel.name} for alert_id in alert_ids]
-            session.execute(statement, rows)
+            insert_new(session, AlertNotification, rows, ["alert_id", "notifier"])
             found += len(rows)
     return found
 

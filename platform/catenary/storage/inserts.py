@@ -14,6 +14,7 @@ from typing import Any, TypeVar
 
 from sqlalchemy import select
 from sqlalchemy.dialects import postgresql, sqlite
+from sqlalchemy.engine import Row
 from sqlalchemy.orm import Session
 
 from catenary.storage.models import Base
@@ -24,19 +25,25 @@ Model = TypeVar("Model", bound=Base)
 
 
 def insert_new(
-    session: Session, model: type[Base], rows: Sequence[Mapping[str, Any]], unique: Sequence[str]
-) -> int:
+    session: Session,
+    model: type[Base],
+    rows: Sequence[Mapping[str, Any]],
+    unique: Sequence[str],
+    returning: Sequence[str] = ("id",),
+) -> Sequence[Row[Any]]:
     """Insert ``rows`` of ``model``, leaving out each whose ``unique`` columns (one of the
-    table's unique constraints) are taken; returns how many were inserted."""
+    table's unique constraints) are taken; returns the ``returning`` columns of those inserted.
+    """
     if not rows:
-        return 0
+        return []
     dialect = postgresql if session.get_bind().dialect.name == "postgresql" else sqlite
+    columns = model.__table__.c
     statement = (
         dialect.insert(model)
         .on_conflict_do_nothing(index_elements=list(unique))
-        .returning(model.__table__.c.id)
+        .returning(*(columns[name] for name in returning))
     )
-    return len(session.execute(statement, list(rows)).all())
+    return session.execute(statement, list(rows)).all()
 
 
 def get_or_add(

@@ -67,9 +67,8 @@ def track_masts(session: Session, track: Track, register: TrackRegister) -> int:
         )
     ]
     stored = masts()
-    changed = insert_new(
-        session, Mast, [r for r in rows if r["code"] not in stored], ["track_id", "code"]
-    )
+    new = [r for r in rows if r["code"] not in stored]
+    changed = len(insert_new(session, Mast, new, ["track_id", "code"]))
     if changed:
         stored = masts()
     for row in rows:

@@ -16,7 +16,6 @@ from sqlalchemy import (
     text,
     update,
 )
-from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import Session, aliased
 
@@ -37,6 +36,7 @@ from catenary.maintenance.notifications import (
     queue_notifications,
 )
 from catenary.storage.database import session_scope
+from catenary.storage.inserts import insert_new
 from catenary.storage.models import (
     Alert,
     Line,
@@ -448,17 +448,11 @@ class _Track:
         session = self.session
         for changes in _same_keys(self.updates):
             session.execute(update(Alert), changes)
-        if self.inserts:
-            dialect = postgresql if session.get_bind().dialect.name == "postgresql" else sqlite
-            statement = (
-                dialect.insert(Alert)
-                .on_conflict_do_nothing(index_elements=["condition_key"])
-                .returning(Alert.id, Alert.condition_key)
-            )
-            level = {row["condition_key"]: row["level"] for row in self.inserts}
-            for row in session.execute(statement, self.inserts).all():
-                result.new.append(int(row.id))
-                result.new_levels[level[row.condition_key]] += 1
+        level = {row["condition_key"]: row["level"] for row in self.inserts}
+        key = ["condition_key"]
+        for row in insert_new(session, Alert, self.inserts, key, returning=("id", *key)):
+            result.new.append(int(row.id))
+            result.new_levels[level[row.condition_key]] += 1
         result.updated += len(self.updates) - self.resolved
         result.resolved += self.resolved
 
