@@ -11,6 +11,7 @@ from __future__ import annotations
 import re
 import signal
 import socket
+import threading
 import time
 from collections.abc import Callable, Iterator
 from datetime import UTC, datetime, timedelta
@@ -20,7 +21,8 @@ import pytest
 import tomli_w
 from sqlalchemy import Engine, update
 
-from catenary.storage.database import session_scope
+from catenary.maintenance.leadership import Leadership, LeaseTiming
+from catenary.storage.database import make_engine, session_scope
 from catenary.storage.leases import database_now
 from catenary.storage.models import SchedulerLease
 
@@ -180,3 +182,23 @@ def test_a_holder_cut_off_from_its_database_pauses_and_the_standby_takes_over(
     fire_times = cut_off.fire_times() + standby.fire_times()
     assert len(set(fire_times)) == len(fire_times)
     assert_clean(standby)
+
+
+@pytest.mark.parametrize("database_url", ["postgresql"], indirect=True)
+def test_a_heartbeat_cut_off_mid_statement_keeps_the_lease_for_its_term(
+    database_url: str, engine: Engine
+) -> None:
+    """A connection lost during the renewal (``DatabaseUnavailable``, not a bare driver
+    error) is a database error like any other: the holder keeps its lease until its term ends,
+    then pauses, instead of dying."""
+    with proxy_for(database_url) as proxy:
+        through = make_engine(proxy.url(database_url))
+        try:
+            leadership = Leadership(through, LeaseTiming(lease_s=3.0, heartbeat_s=1.0))
+            assert leadership.wait_for_lease(threading.Event())
+            proxy.cut_on(b"UPDATE scheduler_leases")
+            assert leadership.renew()  # within its term: still the holder
+            time.sleep(3.0)
+            assert not leadership.renew()  # not renewed for a whole term: lost
+        finally:
+            through.dispose()

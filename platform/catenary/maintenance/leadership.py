@@ -22,10 +22,9 @@ from dataclasses import dataclass
 from datetime import timedelta
 
 from sqlalchemy import Engine
-from sqlalchemy.exc import DBAPIError
 
 from catenary.storage import leases
-from catenary.storage.database import one_line
+from catenary.storage.database import DATABASE_ERRORS, one_line
 from catenary.storage.models import NAME_LENGTH
 from catenary.text import printable
 
@@ -97,7 +96,7 @@ class Leadership:
         began = time.monotonic()
         try:
             renewed = leases.renew(self._engine, self._lease, self._duration)
-        except DBAPIError as exc:
+        except DATABASE_ERRORS as exc:
             self._database_error(exc)
             if self.holds():
                 return True
@@ -119,7 +118,7 @@ class Leadership:
             return
         try:
             released = leases.release(self._engine, lease)
-        except DBAPIError as exc:
+        except DATABASE_ERRORS as exc:
             log.warning(
                 "scheduler lease not released (%s): a standby takes over once it expires",
                 printable(one_line(exc)),
@@ -133,7 +132,7 @@ class Leadership:
             attempt = leases.acquire(
                 self._engine, LEASE_NAME, host=self._host, pid=self._pid, duration=self._duration
             )
-        except DBAPIError as exc:
+        except DATABASE_ERRORS as exc:
             self._database_error(exc)
             return False
         self._database_back()
@@ -162,7 +161,7 @@ class Leadership:
             )
         return False
 
-    def _database_error(self, exc: DBAPIError) -> None:
+    def _database_error(self, exc: Exception) -> None:
         text = printable(one_line(exc))
         if text != self._error:  # once per kind of failure, not at every heartbeat
             self._error = text

@@ -65,7 +65,6 @@ from apscheduler.schedulers.base import BaseScheduler
 from apscheduler.triggers.cron import CronTrigger
 from apscheduler.triggers.interval import IntervalTrigger
 from sqlalchemy import Engine
-from sqlalchemy.exc import DBAPIError
 
 from catenary.config import Settings
 from catenary.errors import UserError
@@ -78,7 +77,7 @@ from catenary.maintenance.leadership import (
     LeaseTiming,
 )
 from catenary.plugins import PluginFailure, PluginRegistry
-from catenary.storage.database import one_line, open_database
+from catenary.storage.database import DATABASE_ERRORS, one_line, open_database
 from catenary.storage.models import utc_now
 from catenary.text import printable
 
@@ -417,7 +416,7 @@ def _lead(
             try:
                 _start_jobs(scheduler, store, config)
                 started = True
-            except DBAPIError as exc:
+            except DATABASE_ERRORS as exc:
                 log.warning(
                     "jobs not started (%s): trying again at the next heartbeat",
                     printable(one_line(exc)),

@@ -106,6 +106,11 @@ class DatabaseUnavailable(UserError):
     """The database stopped answering, or the connection to it was lost, during a command."""
 
 
+DATABASE_ERRORS = (DBAPIError, DatabaseUnavailable)
+"""What a statement raises when the database fails or goes away (a lost connection is turned
+into ``DatabaseUnavailable``): what a long-running service catches to try again later."""
+
+
 class _Watchdog:
     """Cuts a PostgreSQL connection whose statement or commit has not been answered
     ``limit_s`` after it was sent (a silent server): its socket is shut down, so the driver's
