@@ -1,7 +1,9 @@
 """``catenary process``: a recorded run into per-span wear in the database (the main job).
 
-1. **Check** everything a user gives before anything is written: the run file's layout, the
-   rig calibration (read by the processor), the mast register and its wire types, the wire
+1. **Check** everything a user gives before anything is written: the run file's layout
+   (opened once, so that its warnings are given once), the rig calibration (read by the
+   processor) and, if the processor is a ``RunChecker``, that the run fits it (line widths,
+   regions of interest, cameras), the mast register and its wire types, the wire
    type, the line and track, the database's migration; a run already stored from the same
    file content and rig calibration is said so and left alone (``--replace`` processes it
    again and replaces it).
