@@ -61,10 +61,15 @@ class VehicleSamples:
 
 @dataclass(frozen=True)
 class CameraLines:
-    """One camera's lines for a block of scans: ``lines`` is ``[n, W]`` uint8 or uint16."""
+    """One camera's lines for a block of scans: ``lines`` is ``[n, W]`` uint8 or uint16.
+
+    ``offset_px``: line pixel ``i`` is pixel ``offset_px + i`` of the camera's sensor (a
+    region of interest; 0: the lines start at the sensor's first pixel).
+    """
 
     lines: UInt8Array | UInt16Array
     bit_depth: int
+    offset_px: int = 0
 
 
 @dataclass(frozen=True)
@@ -89,7 +94,12 @@ class ScanBlock:
 
 @dataclass(frozen=True)
 class RunHeader:
-    """A recorded run's root attributes (FORMATS.md) and its shape."""
+    """A recorded run's root attributes (FORMATS.md) and its shape.
+
+    ``camera_pixels`` is each camera's line width ``W``; ``camera_offset_px`` holds the
+    region of interest's first sensor pixel of the cameras that declare one (attribute
+    ``offset_px``): the others' lines hold the whole sensor.
+    """
 
     line: str
     track: str
@@ -101,6 +111,7 @@ class RunHeader:
     scans: int
     camera_pixels: dict[str, int]
     camera_bit_depth: dict[str, int]
+    camera_offset_px: dict[str, int] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)

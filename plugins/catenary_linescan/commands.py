@@ -107,6 +107,13 @@ def calibrate(**options: Any) -> None:
     default=None,
     help="0: straight; > 0: a curve over the second half; default: the seed decides.",
 )
+@click.option(
+    "--roi",
+    metavar="CAMERA=OFFSET:WIDTH",
+    multiple=True,
+    help="Record CAMERA's sensor pixels OFFSET to OFFSET+WIDTH-1 only, with attribute "
+    "offset_px (a region of interest; repeatable).",
+)
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 def simulate(**options: Any) -> None:
     """Simulate a recorded run OUT.h5 of the rig over a generated section of line.

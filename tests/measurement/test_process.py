@@ -17,6 +17,7 @@ import socket
 import subprocess
 import sys
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
@@ -37,6 +38,7 @@ from catenary.measurement.process import (
     database_fingerprint,
     remove_abandoned_scratch,
 )
+from catenary.measurement.runfile import RunFileWarning
 from catenary.measurement.samples import EXPORT_COLUMNS
 from catenary.measurement.spans import SPAN_COLUMNS
 from catenary.plugins import PluginRegistry, Processor, hookimpl
@@ -69,6 +71,7 @@ def invoke(*args: str) -> Result:
 
 
 SETTINGS = {"length_m": 250.0, "overlap": True, "speed_kmh": 160.0, "seed": 5}
+ENCODER_ERRORS = {"encoder_scale_error": 0.004, "start_chainage_error_m": -2.5}
 
 
 @pytest.fixture(scope="module")
@@ -76,8 +79,7 @@ def simulated(tmp_path_factory: pytest.TempPathFactory) -> Simulated:
     """The run with a 0.4 % encoder scale error and a start chainage 2.5 m off."""
     folder = tmp_path_factory.mktemp("simulated")
     run = folder / "run.h5"
-    errors = {"encoder_scale_error": 0.004, "start_chainage_error_m": -2.5}
-    record_run(run, {**SETTINGS, **errors})
+    record_run(run, {**SETTINGS, **ENCODER_ERRORS})
     captures, _ = write_captures(folder / "captures.h5", load_rig(DEMO_RIG_PATH), seed=2)
     rig = folder / "rig.toml"
     result = invoke("calibrate", captures, "--vehicle", DEMO_RIG_PATH, "-o", rig)
@@ -122,6 +124,22 @@ def samples_of(database: str, data_dir: Path, run_id: int) -> dict[str, np.ndarr
     return {name: table.column(name).to_numpy() for name in table.column_names}
 
 
+def thickness_error(
+    samples: dict[str, np.ndarray], truth: dict[str, np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Whether each sample lies on a contact wire (within 10 mm of stagger of the nearest at
+    its scan), and the residual thickness error [mm] of those on a running one, without a
+    vehicle fault."""
+    scan = samples["scan"]
+    distance = np.abs(truth["stagger_mm"][scan] - samples["stagger_mm"][:, None])
+    distance = np.where(truth["contact"] & truth["present"][scan], distance, np.inf)
+    nearest = np.argmin(distance, axis=1)
+    on_wire = distance[np.arange(scan.shape[0]), nearest] < 10.0
+    error = samples["residual_thickness_mm"] - truth["thickness"][scan, nearest]
+    good = on_wire & truth["running"][scan, nearest] & ~samples["vehicle_fault"]
+    return on_wire, error[good]
+
+
 def truth_of(path: Path) -> dict[str, np.ndarray]:
     with h5py.File(path, "r") as f:
         return {
@@ -159,15 +177,9 @@ def test_a_run_is_stored_with_its_spans_and_samples_against_the_truth(
     chainage_error = samples["chainage_m"] - truth["chainage_m"][scan]
     assert np.max(np.abs(chainage_error)) < CHAINAGE_TOLERANCE_M
     # each sample is the contact wire nearest it at its scan (none is a messenger, a dropper)
-    distance = np.abs(truth["stagger_mm"][scan] - samples["stagger_mm"][:, None])
-    distance = np.where(truth["contact"] & truth["present"][scan], distance, np.inf)
-    nearest = np.argmin(distance, axis=1)
-    rows = np.arange(scan.shape[0])
-    on_wire = distance[rows, nearest] < 10.0
+    on_wire, error = thickness_error(samples, truth)
     assert np.mean(on_wire) > 0.999
-    error = samples["residual_thickness_mm"] - truth["thickness"][scan, nearest]
-    good = on_wire & truth["running"][scan, nearest] & ~samples["vehicle_fault"]
-    assert np.nanmax(np.abs(error[good])) < THICKNESS_TOLERANCE_MM
+    assert np.nanmax(np.abs(error)) < THICKNESS_TOLERANCE_MM
     # spans: from one register mast to the next, each minimum that of its samples
     assert len(spans) >= 4
     for row in spans:
@@ -596,3 +608,148 @@ def test_ctrl_c_as_the_run_commits_keeps_its_samples_file_and_says_it_is_stored(
     assert [p.name for p in (isolated_environment / "samples").iterdir()] == [
         Path(run.samples_path).name
     ]
+
+
+# -- runs that do not fit the rig, regions of interest, the recording state -----------------
+
+
+@pytest.fixture(scope="module")
+def cropped(simulated: Simulated) -> Simulated:
+    """The same run recorded with every camera's lines cut to the sensor pixels its contact
+    wires cross (150 px either side, from the truth's images of them; here they cross the
+    sensor's right end), ``offset_px`` declared: 800-1,250 px cut at the left."""
+    roi = {}
+    with h5py.File(simulated.truth, "r") as f:
+        seen = f["/wires/present"][:] & f["/wires/contact"][:]
+        for name, camera in f["cameras"].items():
+            u = camera["u_px"][:][seen]
+            first = max(0, int(np.floor(np.nanmin(u))) - 150)
+            stop = min(int(camera.attrs["pixels"]), int(np.ceil(np.nanmax(u))) + 151)
+            roi[name] = (first, stop - first)
+    assert all(offset > 500 and offset + width <= 4096 for offset, width in roi.values())
+    run = simulated.run.with_name("cropped.h5")
+    record_run(run, {**SETTINGS, **ENCODER_ERRORS}, roi=roi)
+    return Simulated(run, simulated.truth, simulated.masts, simulated.rig)
+
+
+def test_a_region_of_interest_processes_to_the_same_wear_as_the_whole_line(
+    simulated: Simulated, cropped: Simulated, database: str, isolated_environment: Path
+) -> None:
+    truth = truth_of(simulated.truth)
+    errors = []
+    for run_id, run in enumerate((simulated, cropped), start=1):
+        result = process(run, database)
+        assert result.exit_code == 0, result.output
+        on_wire, error = thickness_error(samples_of(database, isolated_environment, run_id), truth)
+        assert np.mean(on_wire) > 0.999
+        errors.append(error)
+    whole, roi = errors
+    assert roi.shape[0] >= 0.999 * whole.shape[0]  # the same samples: the wires lie in the ROI
+    assert np.sqrt(np.nanmean(roi**2)) < 0.05
+    assert np.nanmax(np.abs(roi)) < THICKNESS_TOLERANCE_MM
+    assert abs(np.sqrt(np.nanmean(roi**2)) - np.sqrt(np.nanmean(whole**2))) < 0.005
+
+
+@pytest.fixture(scope="module")
+def short_run(simulated: Simulated) -> Path:
+    """20 m of straight line without an overlap: a run quick to process."""
+    run = simulated.run.with_name("short.h5")
+    record_run(run, {"length_m": 20.0, "overlap": False, "speed_kmh": 160.0, "seed": 8})
+    return run
+
+
+def edited(run: Path, folder: Path, edit: Any) -> Path:
+    """A copy of ``run`` in ``folder`` changed by ``edit(h5py.File)``."""
+    copy = folder / "edited.h5"
+    shutil.copyfile(run, copy)
+    with h5py.File(copy, "r+") as f:
+        edit(f)
+    return copy
+
+
+def process_short(run: Path, simulated: Simulated, database: str) -> Result:
+    return invoke("process", run, "--rig", simulated.rig, "--wire-type", "CTA120", "--db", database)
+
+
+def test_a_run_cut_to_half_the_sensor_is_refused_naming_the_camera(
+    simulated: Simulated, database: str, isolated_environment: Path, tmp_path: Path
+) -> None:
+    run = tmp_path / "cut.h5"
+    record_run(
+        run,
+        {"length_m": 5.0, "overlap": False, "seed": 8},
+        roi={name: (0, 2048) for name in ("cam1", "cam2", "cam3", "cam4")},
+    )
+    with h5py.File(run, "r+") as f:  # cut without saying so: no offset_px
+        for camera in f["cameras"].values():
+            del camera.attrs["offset_px"]
+    assert one_line_error(process_short(run, simulated, database)) == (
+        f"Error: {run}: camera 'cam1': lines of 2048 pixels, but rig 'demo-rig' calibrated it "
+        "with 4096 (a region of interest declares offset_px)"
+    )
+    assert stored(database) == (0, 0)
+    samples = isolated_environment / "samples"
+    assert not samples.exists() or not any(samples.iterdir())
+
+
+def test_a_bit_depth_above_the_lines_type_is_refused_naming_the_camera(
+    simulated: Simulated, short_run: Path, database: str, tmp_path: Path
+) -> None:
+    run = edited(
+        short_run, tmp_path, lambda f: f["cameras/cam3/lines"].attrs.__setitem__("bit_depth", 12)
+    )
+    line = one_line_error(process_short(run, simulated, database))
+    for needle in (str(run), "camera 'cam3'", "bit_depth = 12", "8 bits", "uint8"):
+        assert needle in line, (needle, line)
+    assert stored(database) == (0, 0)
+
+
+def test_an_overview_camera_is_named_once_and_ignored(
+    simulated: Simulated,
+    short_run: Path,
+    database: str,
+    isolated_environment: Path,
+    tmp_path: Path,
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    def overview(f: h5py.File) -> None:
+        n = f["scans/position_m"].shape[0]
+        f["cameras/overview/lines"] = np.zeros((n, 1280), np.uint8)
+        f["cameras/overview/lines"].attrs["bit_depth"] = 8
+
+    plain = process_short(short_run, simulated, database)
+    assert plain.exit_code == 0, plain.output
+    assert not caplog.records
+    result = process_short(edited(short_run, tmp_path, overview), simulated, database)
+    assert result.exit_code == 0, result.output
+    assert [r.getMessage() for r in caplog.records] == [
+        "warning: camera 'overview' of the run is not in rig 'demo-rig': ignored"
+    ]
+    one = samples_of(database, isolated_environment, 1)
+    two = samples_of(database, isolated_environment, 2)
+    assert one["scan"].shape[0] > 100
+    np.testing.assert_array_equal(one["residual_thickness_mm"], two["residual_thickness_mm"])
+
+
+def _interrupted(f: h5py.File) -> None:
+    for name in ("completed_scans", "completed_at"):
+        del f.attrs[name]
+    f.attrs["complete"] = False
+
+
+def _another_recorder(f: h5py.File) -> None:
+    for name in ("complete", "completed_scans", "completed_at"):
+        del f.attrs[name]
+
+
+@pytest.mark.parametrize(("edit", "warned"), [(_interrupted, 1), (_another_recorder, 0)])
+def test_the_recording_state_warns_once_when_interrupted_and_never_when_unknown(
+    simulated: Simulated, short_run: Path, database: str, tmp_path: Path, edit: Any, warned: int
+) -> None:
+    run = edited(short_run, tmp_path, edit)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = process_short(run, simulated, database)
+    assert result.exit_code == 0, result.output
+    state = [w for w in caught if issubclass(w.category, RunFileWarning)]
+    assert len(state) == warned, [str(w.message) for w in state]

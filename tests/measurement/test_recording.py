@@ -332,7 +332,7 @@ def test_ctrl_c_while_writing_finishes_the_block_then_stops(tmp_path: Path) -> N
 # -- errors ----------------------------------------------------------------------------------
 
 
-def test_a_source_failing_midway_keeps_the_scans_without_the_marker(tmp_path: Path) -> None:
+def test_a_source_failing_midway_keeps_the_scans_marked_incomplete(tmp_path: Path) -> None:
     out = tmp_path / "run.h5"
     result = record(
         out, "--source", "fake-scans", "--source-option", "blocks=2",
@@ -343,10 +343,11 @@ def test_a_source_failing_midway_keeps_the_scans_without_the_marker(tmp_path: Pa
     assert lines[-1] == (
         "Error: source 'fake-scans' of plugin 'fake' failed: RuntimeError: camera link lost; "
         "kept 20 scans in "
-        f"{out} (no completion marker: reads as interrupted)"
+        f"{out} (marked complete = false: reads as interrupted)"
     )
-    with pytest.warns(RunFileWarning), open_run(out) as run:
-        assert run.header.scans == 20 and not run.complete
+    with pytest.warns(RunFileWarning) as warned, open_run(out) as run:
+        assert run.header.scans == 20 and run.complete is False
+    assert len(warned) == 1
 
 
 def test_a_source_failing_before_any_scan_leaves_no_file(tmp_path: Path) -> None:

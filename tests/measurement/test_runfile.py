@@ -189,6 +189,7 @@ def test_root_attributes_follow_formats_md(run_path: Path) -> None:
         assert f.attrs["format"] == "catenary-run"
         assert f.attrs["format_version"] == 1
         assert f.attrs["direction"] == "decreasing"
+        assert f.attrs["complete"] is np.True_
         assert f.attrs["completed_scans"] == 10
         assert isinstance(f.attrs["completed_at"], str)
         assert f["scans/position_m"].dtype == np.float64
@@ -338,10 +339,11 @@ def test_a_third_party_file_in_the_formats_md_layout_is_read(run_path: Path) -> 
         for name in ("left_mm", "right_mm", "lateral_mm"):
             f[f"vehicle/{name}"] = np.array([0.0, 1.0, 2.0])
         f.create_group("extra/stuff")
-    with pytest.warns(RunFileWarning, match="no completion marker"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no recording state: nothing known, no warning
         run = open_run(run_path)
     with run:
-        assert not run.complete
+        assert run.complete is None
         assert run.header.scans == n
         assert run.header.track == "2"
         assert run.header.start_chainage_m == 100.0
@@ -607,11 +609,25 @@ MALFORMED: dict[str, tuple[Callable[[h5py.File], None], list[str]]] = {
     "int vehicle": (_replace("vehicle/left_mm", np.int64), ["/vehicle/left_mm", "int64"]),
     "lines shorter (marked complete)": (
         _resize("cameras/a/lines", 30),
-        ["/cameras/a/lines", "30", "40", "mismatched"],
+        ["/cameras/a/lines", "30", "completed_scans = 40"],
     ),
-    "times longer (marked complete)": (
-        _resize("scans/time_s", 45),
-        ["/scans/time_s", "45", "mismatched"],
+    "complete without completed_scans": (
+        _del_attr("completed_scans"),
+        ["complete = True", "without completed_scans"],
+    ),
+    "incomplete with completed_scans": (
+        _set_attr("complete", False),
+        ["complete = False", "completed_scans = 40"],
+    ),
+    "complete not a bool": (_set_attr("complete", "yes"), ["/ attribute complete", "'yes'"]),
+    "complete = 2": (_set_attr("complete", 2), ["/ attribute complete = 2"]),
+    "negative offset_px": (
+        lambda f: f["cameras/a"].attrs.__setitem__("offset_px", -1),
+        ["/cameras/a", "offset_px = -1"],
+    ),
+    "fractional offset_px": (
+        lambda f: f["cameras/a"].attrs.__setitem__("offset_px", 2.5),
+        ["/cameras/a", "offset_px = 2.5"],
     ),
     "vehicle lengths differ (marked complete)": (
         _resize("vehicle/right_mm", 3),
@@ -659,22 +675,83 @@ def test_a_missing_file_is_a_user_error(tmp_path: Path) -> None:
         open_run(tmp_path / "nope.h5")
 
 
-# -- interrupted recordings ----------------------------------------------------------------
+# -- the recording state ------------------------------------------------------------------
 
 
-def test_no_completion_marker_reads_everything_with_a_warning(run_path: Path) -> None:
+def interrupt(f: h5py.File) -> None:
+    """Make a closed run file read as the project's recorder leaves an interrupted one."""
+    del f.attrs["completed_scans"]
+    del f.attrs["completed_at"]
+    f.attrs["complete"] = False
+
+
+def test_an_interrupted_recording_reads_everything_with_one_warning(run_path: Path) -> None:
     expected = write_run(run_path, [30])
     with h5py.File(run_path, "r+") as f:
-        del f.attrs["completed_scans"]
+        interrupt(f)
     with pytest.warns(RunFileWarning) as record:
         run = open_run(run_path)
+    assert len(record) == 1
     message = str(record[0].message)
-    assert str(run_path) in message
-    assert "30 scans" in message
+    assert "\n" not in message
+    for needle in (str(run_path), "complete = False", "interrupted", "30 scans"):
+        assert needle in message, (needle, message)
     with run:
-        assert not run.complete
+        assert run.complete is False
         block = read_all(run)[0]
     np.testing.assert_array_equal(block.position_m, expected.position_m)
+
+
+def no_warning_open(path: Path) -> RunFile:
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        return open_run(path)
+
+
+@pytest.mark.parametrize("attrs", [("complete", "completed_scans", "completed_at"), ("complete",)])
+def test_a_file_without_the_recording_state_reads_without_a_warning(
+    run_path: Path, attrs: tuple[str, ...]
+) -> None:
+    """No attribute at all: another recorder (or an interrupted recording of this project's
+    before ``complete`` existed, which cannot be told apart): nothing known, no warning. The
+    marker alone (this project's files before ``complete`` existed): complete."""
+    expected = write_run(run_path, [30])
+    with h5py.File(run_path, "r+") as f:
+        for name in attrs:
+            del f.attrs[name]
+    with no_warning_open(run_path) as run:
+        assert run.complete is (True if "completed_scans" not in attrs else None)
+        assert run.header.scans == 30
+        np.testing.assert_array_equal(read_all(run)[0].position_m, expected.position_m)
+
+
+def test_datasets_longer_than_completed_scans_are_read_up_to_it(run_path: Path) -> None:
+    expected = write_run(run_path, [40])
+    with h5py.File(run_path, "r+") as f:
+        f.attrs["completed_scans"] = 35
+        f["scans/time_s"].resize(45, axis=0)  # a row written after the count: not read
+        f["scans/time_s"][40:] = 1.0
+    with no_warning_open(run_path) as run:
+        assert run.complete is True
+        assert run.header.scans == 35
+        blocks = read_all(run, 8)
+    np.testing.assert_array_equal(concat(blocks, "time_s"), expected.time_s[:35])
+    np.testing.assert_array_equal(concat_lines(blocks, "a"), expected.lines["a"][:35])
+
+
+def test_another_recorders_file_of_unequal_lengths_warns_once(run_path: Path) -> None:
+    write_run(run_path, [30])
+    with h5py.File(run_path, "r+") as f:
+        for name in ("complete", "completed_scans", "completed_at"):
+            del f.attrs[name]
+        f["cameras/b/lines"].resize(20, axis=0)
+    with pytest.warns(RunFileWarning) as record:
+        run = open_run(run_path)
+    assert len(record) == 1
+    assert "different lengths" in str(record[0].message)
+    assert "/cameras/b/lines 20" in str(record[0].message)
+    with run:
+        assert run.complete is None and run.header.scans == 20
 
 
 @pytest.mark.parametrize(
@@ -691,7 +768,7 @@ def test_truncated_file_reads_up_to_the_last_complete_scan(
 ) -> None:
     expected = write_run(run_path, [25, 25])
     with h5py.File(run_path, "r+") as f:
-        del f.attrs["completed_scans"]
+        interrupt(f)
         f[shorten].resize(length, axis=0)
     with pytest.warns(RunFileWarning, match=rf"the {length} scans") as record:
         run = open_run(run_path)
@@ -710,7 +787,7 @@ def test_truncated_file_reads_up_to_the_last_complete_scan(
 def test_truncated_vehicle_datasets_are_read_up_to_the_shortest(run_path: Path) -> None:
     write_run(run_path, [50])
     with h5py.File(run_path, "r+") as f:
-        del f.attrs["completed_scans"]
+        interrupt(f)
         f["vehicle/lateral_mm"].resize((10,))  # samples 0..9: 0 to 0.009 s
     with pytest.warns(RunFileWarning, match="10 vehicle samples"):
         run = open_run(run_path)
@@ -728,16 +805,20 @@ def test_a_recording_that_raised_is_read_as_interrupted(run_path: Path) -> None:
     ):
         w.append(np.arange(10.0), np.arange(10.0), make_lines(0, 10, rng))
         raise RuntimeError("camera lost")
-    with pytest.warns(RunFileWarning, match="10 scans"):
+    with h5py.File(run_path, "r") as f:  # as created: the recording state is false
+        assert f.attrs["complete"] is np.False_
+        assert "completed_scans" not in f.attrs and "completed_at" not in f.attrs
+    with pytest.warns(RunFileWarning, match="10 scans") as record:
         run = open_run(run_path)
+    assert len(record) == 1
     with run:
-        assert run.header.scans == 10
+        assert run.header.scans == 10 and run.complete is False
 
 
 def test_a_truncated_file_that_is_also_malformed_is_an_error(run_path: Path) -> None:
     write_run(run_path, [30])
     with h5py.File(run_path, "r+") as f:
-        del f.attrs["completed_scans"]
+        interrupt(f)
         f["cameras/a/lines"].resize(20, axis=0)
         f["scans/position_m"][25] = 0.0  # beyond the usable scans: not checked
         f["scans/position_m"][12] = -5.0
@@ -1003,10 +1084,11 @@ def test_an_attribute_holding_many_values_is_refused_unread(run_path: Path) -> N
 
 def test_a_root_group_damaged_past_what_opening_checks_is_a_format_error(run_path: Path) -> None:
     write_run(run_path, [10])
-    # the root group's header continues near the end of the file (attributes added last);
-    # HDF5 opens the file and fails only when the group is read
+    # the root group's header lies near the start of the file, or continues near its end
+    # where attributes were added last; HDF5 opens the file and fails only when the group is
+    # read
     size = run_path.stat().st_size
-    for offset in range(size - 1, size - 1024, -1):
+    for offset in [*range(size - 1, size - 1024, -1), *range(4096)]:
         damaged = _damaged(run_path, offset)
         try:
             with h5py.File(damaged, "r") as f:
@@ -1017,7 +1099,7 @@ def test_a_root_group_damaged_past_what_opening_checks_is_a_format_error(run_pat
             pass
         damaged.unlink()
     else:
-        pytest.fail("no byte near the end of the file holds the root group's header")
+        pytest.fail("no byte near the file's ends holds the root group's header")
     with pytest.raises(FormatError, match="damaged HDF5 file") as info:
         open_run(damaged)
     assert str(info.value).startswith(f"{damaged}: ") and "\n" not in str(info.value)
@@ -1032,3 +1114,30 @@ def test_a_damaged_chunk_is_a_format_error_naming_the_dataset(run_path: Path) ->
         list(run.blocks(8))
     assert str(info.value).startswith(f"{damaged}: /cameras/b/lines[16:24] cannot be read (")
     assert "\n" not in str(info.value)
+
+
+# -- regions of interest -------------------------------------------------------------------
+
+
+def test_a_region_of_interest_is_written_and_read(run_path: Path) -> None:
+    write_run(run_path, [12], offsets_px={"b": 700})
+    with h5py.File(run_path, "r") as f:
+        assert f["cameras/b"].attrs["offset_px"] == 700
+        assert "offset_px" not in f["cameras/a"].attrs
+    with open_run(run_path) as run:
+        assert run.header.camera_offset_px == {"b": 700}
+        block = read_all(run)[0]
+    assert block.cameras["b"].offset_px == 700
+    assert block.cameras["a"].offset_px == 0
+
+
+@pytest.mark.parametrize(
+    ("offsets", "needle"),
+    [({"c": 3}, "unknown camera 'c'"), ({"a": -2}, "offset_px must be an integer >= 0, got -2")],
+)
+def test_the_writer_refuses_a_bad_offset(
+    run_path: Path, offsets: dict[str, int], needle: str
+) -> None:
+    with pytest.raises(ValueError, match=needle):
+        _writer(run_path, offsets_px=offsets)
+    assert not run_path.exists()

@@ -12,13 +12,15 @@ are 0.05 mm RMS and 0.10 mm worst for the residual thickness, 2 mm for height an
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from catenary.domain import CameraLines, ScanBlock, VehicleSamples, WireObservations
+from catenary.domain import CameraLines, RunHeader, ScanBlock, VehicleSamples, WireObservations
 from catenary.errors import UserError
 from catenary.measurement.vehicle import roof_to_track
 from catenary.measurement.wear import (
@@ -65,6 +67,7 @@ class Section:
     truth: dict[str, np.ndarray]
     contact: np.ndarray
     wire_type: str
+    offset_px: dict[str, int] = dataclasses.field(default_factory=dict)
 
     def blocks(self, size: int):
         n = self.position_m.shape[0]
@@ -74,7 +77,10 @@ class Section:
                 first_scan=self.first_scan + start,
                 position_m=self.position_m[part],
                 time_s=self.time_s[part],
-                cameras={k: CameraLines(v[part], self.bit_depth[k]) for k, v in self.lines.items()},
+                cameras={
+                    k: CameraLines(v[part], self.bit_depth[k], self.offset_px.get(k, 0))
+                    for k, v in self.lines.items()
+                },
                 vehicle=VehicleSamples(**{k: v[part] for k, v in self.vehicle.items()}),
             )
 
@@ -333,6 +339,117 @@ def test_a_block_without_a_rig_camera_is_refused(rig: Rig, overlap: Section) -> 
     broken = ScanBlock(block.first_scan, block.position_m, block.time_s, cameras, block.vehicle)
     with pytest.raises(UserError, match="no camera 'cam2'"):
         LineScanProcessor(rig).process(broken)
+
+
+def header_of(widths: dict[str, int], offsets: dict[str, int] | None = None) -> RunHeader:
+    return RunHeader(
+        line="L",
+        track="1",
+        vehicle="v",
+        direction="increasing",
+        start_chainage_m=0.0,
+        started_at="2024-01-01T00:00:00Z",
+        scan_rate_hz=1000.0,
+        scans=10,
+        camera_pixels=widths,
+        camera_bit_depth=dict.fromkeys(widths, 8),
+        camera_offset_px=offsets or {},
+    )
+
+
+def test_a_run_that_fits_the_rig_is_accepted_silently(
+    rig: Rig, caplog: pytest.LogCaptureFixture
+) -> None:
+    widths = {name: c.camera.pixels for name, c in rig.cameras.items()}
+    LineScanProcessor(rig).check_run(header_of(widths))
+    # regions of interest within the sensor, one of them at its very end
+    roi = dict.fromkeys(widths, 2048)
+    offsets = {"cam1": 0, "cam2": 1000, "cam3": 1, "cam4": 2048}
+    LineScanProcessor(rig).check_run(header_of(roi, offsets))
+    assert not caplog.records
+
+
+@pytest.mark.parametrize(
+    ("widths", "offsets", "needles"),
+    [
+        ({"cam1": 2048}, {}, ["camera 'cam1'", "2048", "4096"]),
+        ({"cam2": 4097}, {}, ["camera 'cam2'", "4097", "4096"]),
+        ({"cam4": 2048}, {"cam4": 2049}, ["camera 'cam4'", "offset_px 2049", "4097", "4096"]),
+        ({"cam3": 4096}, {"cam3": 1}, ["camera 'cam3'", "offset_px 1", "4097", "4096"]),
+    ],
+)
+def test_lines_that_do_not_fit_the_sensor_are_refused(
+    rig: Rig, widths: dict[str, int], offsets: dict[str, int], needles: list[str]
+) -> None:
+    full = {name: c.camera.pixels for name, c in rig.cameras.items()}
+    assert set(full.values()) == {4096}
+    with pytest.raises(UserError) as info:
+        LineScanProcessor(rig).check_run(header_of({**full, **widths}, offsets))
+    message = str(info.value)
+    assert "\n" not in message
+    for needle in needles:
+        assert needle in message, (needle, message)
+
+
+def test_a_run_without_a_rig_camera_is_refused_before_any_scan(rig: Rig) -> None:
+    widths = {name: c.camera.pixels for name, c in rig.cameras.items()}
+    del widths["cam2"]
+    with pytest.raises(UserError, match="the run has no camera 'cam2'"):
+        LineScanProcessor(rig).check_run(header_of(widths))
+
+
+def test_a_camera_the_rig_lacks_is_named_once_and_ignored(
+    rig: Rig, overlap: Section, caplog: pytest.LogCaptureFixture
+) -> None:
+    widths = {name: c.camera.pixels for name, c in rig.cameras.items()}
+    processor = LineScanProcessor(rig)
+    with caplog.at_level(logging.WARNING):
+        processor.check_run(header_of({**widths, "overview": 1920}))
+    assert [r.getMessage() for r in caplog.records] == [
+        f"warning: camera 'overview' of the run is not in rig {rig.vehicle.name!r}: ignored"
+    ]
+    block = next(overlap.blocks(64))
+    extra = {**block.cameras, "overview": CameraLines(np.zeros((64, 1920), np.uint8), 8)}
+    with_extra = ScanBlock(block.first_scan, block.position_m, block.time_s, extra, block.vehicle)
+    a = processor.process(with_extra)
+    b = LineScanProcessor(rig).process(block)
+    for name in WireObservations.__dataclass_fields__:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_a_block_beyond_the_sensor_is_refused(rig: Rig, overlap: Section) -> None:
+    block = next(overlap.blocks(16))
+    cameras = dict(block.cameras)
+    cameras["cam1"] = CameraLines(cameras["cam1"].lines[:, :2048], 8, offset_px=3000)
+    broken = ScanBlock(block.first_scan, block.position_m, block.time_s, cameras, block.vehicle)
+    expected = r"camera 'cam1': offset_px 3000 \+ 2048 pixels = 5048, beyond the 4096"
+    with pytest.raises(UserError, match=expected):
+        LineScanProcessor(rig).process(broken)
+
+
+def test_a_region_of_interest_measures_as_the_whole_line(rig: Rig, overlap: Section) -> None:
+    """Every camera's lines cut to the part of its sensor the contact wires cross (150 px
+    either side), each at its own ``offset_px``: line pixel ``i`` is camera pixel
+    ``offset_px + i``, and the run measures as the whole line does."""
+    t = overlap.truth
+    wires = t["present"] & overlap.contact
+    x, z = t["x_roof_mm"][wires], t["z_roof_mm"][wires]
+    lines, offsets = {}, {}
+    for name, rig_camera in rig.cameras.items():
+        u = rig_camera.camera.project(x, z)
+        first = max(0, int(np.floor(u.min())) - 150)
+        stop = min(rig_camera.camera.pixels, int(np.ceil(u.max())) + 151)
+        offsets[name] = first
+        lines[name] = np.ascontiguousarray(overlap.lines[name][:, first:stop])
+    assert min(offsets.values()) > 100 and len(set(offsets.values())) == len(offsets)
+    assert max(v.shape[1] for v in lines.values()) < 3500
+    cropped = replace(overlap, lines=lines, offset_px=offsets)
+    full = score(overlap, process(rig, overlap, 1024), rig)
+    roi = score(cropped, process(rig, cropped, 1024), rig)
+    assert len(roi.numbers) == 2
+    assert_accurate(roi)
+    assert roi.recall >= full.recall - 0.001
+    assert np.sqrt(np.mean(roi.thickness**2)) <= np.sqrt(np.mean(full.thickness**2)) + 0.005
 
 
 @pytest.mark.parametrize(

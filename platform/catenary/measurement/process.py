@@ -1,7 +1,9 @@
 """``catenary process``: a recorded run into per-span wear in the database (the main job).
 
-1. **Check** everything a user gives before anything is written: the run file's layout, the
-   rig calibration (read by the processor), the mast register and its wire types, the wire
+1. **Check** everything a user gives before anything is written: the run file's layout
+   (opened once, so that its warnings are given once), the rig calibration (read by the
+   processor) and, if the processor is a ``RunChecker``, that the run fits it (line widths,
+   regions of interest, cameras), the mast register and its wire types, the wire
    type, the line and track, the database's migration; a run already stored from the same
    file content and rig calibration is said so and left alone (``--replace`` processes it
    again and replaces it).
@@ -79,11 +81,11 @@ from catenary.errors import UserError
 from catenary.measurement.chain import MeasurementChain, TrackSamples
 from catenary.measurement.chainage import ChainageAlignment, TurningPointFinder, align_to_register
 from catenary.measurement.masts import read_register
-from catenary.measurement.runfile import open_run
+from catenary.measurement.runfile import RunFile, open_run
 from catenary.measurement.samples import SampleWriter, read_sample_batches
 from catenary.measurement.spans import SpanAccumulator, SpanLayout, SpanStatistics
 from catenary.measurement.vehicle import load_vehicle_geometry
-from catenary.plugins import BlockProcessor, PluginRegistry
+from catenary.plugins import BlockProcessor, PluginRegistry, RunChecker
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Run, SpanMeasurement
 from catenary.storage.runs import find_stored_run, store_run
@@ -284,10 +286,10 @@ def _check_names(request: ProcessRequest) -> None:
             raise UserError(problem)
 
 
-def _check_inputs(request: ProcessRequest, settings: Settings, registry: PluginRegistry) -> _Inputs:
+def _check_inputs(
+    request: ProcessRequest, header: RunHeader, settings: Settings, registry: PluginRegistry
+) -> _Inputs:
     _check_names(request)
-    with open_run(request.run_path) as run:
-        header = run.header
     if header.scans == 0:
         raise UserError(f"{request.run_path}: the run holds no scan")
     wire_types = registry.wire_types()
@@ -324,9 +326,10 @@ def _check_inputs(request: ProcessRequest, settings: Settings, registry: PluginR
 
 
 def _processor(
-    request: ProcessRequest, registry: PluginRegistry, settings: Settings
+    request: ProcessRequest, header: RunHeader, registry: PluginRegistry, settings: Settings
 ) -> tuple[BlockProcessor, VehicleGeometry]:
-    """The processor (created: it reads and checks the rig) and the vehicle geometry."""
+    """The processor (created: it reads and checks the rig; and, if it is a ``RunChecker``,
+    it checks that the run fits the rig) and the vehicle geometry."""
     found = registry.processors().get(request.processor)
     if found is None:
         known = ", ".join(sorted(registry.processors())) or "none"
@@ -336,11 +339,17 @@ def _processor(
         raise UserError(f"{settings.config_path}: [processors.{request.processor}] must be a table")
     geometry = load_vehicle_geometry(request.rig_path)
     with registry.boundary("processor", request.processor):
-        return found.create(request.rig_path, options), geometry
+        processor = found.create(request.rig_path, options)
+        if isinstance(processor, RunChecker):
+            try:
+                processor.check_run(header)
+            except UserError as exc:
+                raise UserError(f"{request.run_path}: {exc}") from None
+    return processor, geometry
 
 
 def _measure(
-    request: ProcessRequest,
+    run: RunFile,
     processor: BlockProcessor,
     boundary: Callable[[], AbstractContextManager[None]],
     chain: MeasurementChain,
@@ -364,12 +373,11 @@ def _measure(
                 raise TypeError(f"returned {type(value).__name__}, not WireObservations")
         return value
 
-    with open_run(request.run_path) as run:
-        for block in run.blocks(BLOCK_SCANS):
-            keep(chain.push(block, observations(processor.process, block)))
-            if block.scans:
-                last_position = float(block.position_m[-1])
-            progress(block.scans)
+    for block in run.blocks(BLOCK_SCANS):
+        keep(chain.push(block, observations(processor.process, block)))
+        if block.scans:
+            last_position = float(block.position_m[-1])
+        progress(block.scans)
     keep(chain.finish(observations(processor.finish)))
     return finder, last_position
 
@@ -612,9 +620,24 @@ def process_run(
     progress: Callable[[int], None] = lambda scans: None,
     on_start: Callable[[RunHeader], None] = lambda header: None,
 ) -> ProcessResult:
-    """Process one run file into the database (module docstring); see ``ProcessResult``."""
-    inputs = _check_inputs(request, settings, registry)
-    processor, geometry = _processor(request, registry, settings)
+    """Process one run file into the database (module docstring); see ``ProcessResult``.
+
+    The run file is opened once (its warnings, e.g. an interrupted recording, are given once)
+    and stays open until the run is stored."""
+    with open_run(request.run_path) as run_file:
+        return _process_open_run(run_file, request, settings, registry, progress, on_start)
+
+
+def _process_open_run(
+    run_file: RunFile,
+    request: ProcessRequest,
+    settings: Settings,
+    registry: PluginRegistry,
+    progress: Callable[[int], None],
+    on_start: Callable[[RunHeader], None],
+) -> ProcessResult:
+    inputs = _check_inputs(request, run_file.header, settings, registry)
+    processor, geometry = _processor(request, run_file.header, registry, settings)
     rig_sha256 = hashlib.sha256(inputs.rig_text.encode("utf-8")).hexdigest()
     with open_database(settings, batch=True) as engine:
         with session_scope(engine, read_only=True) as session:
@@ -646,7 +669,7 @@ def process_run(
         try:
             with SampleWriter(measured, _MEASURED_SCHEMA) as writer:
                 finder, last_position = _measure(
-                    request,
+                    run_file,
                     processor,
                     lambda: registry.boundary("processor", request.processor),
                     MeasurementChain(geometry),

@@ -30,12 +30,14 @@ At the source's end, after ``--max-scans``, or on Ctrl-C or SIGTERM. Either sign
 ``KeyboardInterrupt`` from a source) while waiting on the source stops at once; arriving while
 a block is being written, it lets that block finish and stops after it, so the file never
 holds half a block. Either way the blocks written so far are kept, the vehicle samples up to
-the last scan are written, and the file is closed with its completion marker for the scans it
+the last scan are written, and the file is closed as complete (FORMATS.md's recording
+state: ``complete = True`` with ``completed_scans`` and ``completed_at``) for the scans it
 holds; the command prints one line with the number of scans kept and exits with status 130
-(the shell's convention for Ctrl-C; 143 for SIGTERM). SIGKILL leaves the blocks flushed
-before it, without the marker. An error (a source failing, bad data from a source) closes
-the file *without* the marker (it reads as interrupted) and is reported in one line saying how
-many scans were kept. A run file with no scan is removed (a source that gives no scan at all
+(the shell's convention for Ctrl-C; 143 for SIGTERM). The file is created with
+``complete = False``: SIGKILL leaves the blocks flushed before it, marked so. An error (a
+source failing, bad data from a source) closes the file leaving ``complete = False`` (it
+reads as interrupted, with one warning) and is reported in one line saying how many scans
+were kept. A run file with no scan is removed (a source that gives no scan at all
 is an error).
 
 A full disk
@@ -46,7 +48,7 @@ flushed to the file, and before writing the next one it checks that the file may
 twice the larger of that block's bytes and the last block's growth, plus
 :data:`CLOSE_MARGIN_BYTES` for closing (the room is the file system's free space and the
 process's file size limit, ``RLIMIT_FSIZE``). When it may not, the recording stops there like
-Ctrl-C: the file is closed with its marker for the complete blocks it holds, and a
+Ctrl-C: the file is closed as complete for the blocks it holds, and a
 :class:`DiskFull` error says so. A write that fails all the same (another process filled the
 disk in between) is an error as above, and the file may then be unreadable.
 
@@ -91,12 +93,12 @@ __all__ = [
 VEHICLE_MARGIN_S: Final = 0.5
 """Vehicle samples are written up to this long after the last scan written [s]."""
 CLOSE_MARGIN_BYTES: Final = 4 << 20
-"""Room kept for closing a run file (its last vehicle samples, marker and metadata) [bytes]."""
+"""Room kept for closing a run file (its last vehicle samples, state and metadata) [bytes]."""
 
 
 class DiskFull(UserError):
     """The disk (or the file size limit) has no room for the next block: the run file was
-    closed with its marker for the complete blocks it holds (none: it was removed)."""
+    closed as complete for the blocks it holds (none: it was removed)."""
 
     def __init__(self, path: Path, scans: int) -> None:
         kept = f"kept {scans} complete scans" if scans else "nothing recorded"
@@ -337,8 +339,8 @@ def record_run(
             if isinstance(exc, UserError | OSError) and kept:
                 reason = str(exc) if isinstance(exc, UserError) else f"{exc.strerror or exc}"
                 raise UserError(
-                    f"{reason}; kept {kept} scans in {path} (no completion marker: reads as "
-                    "interrupted)"
+                    f"{reason}; kept {kept} scans in {path} (marked complete = false: reads "
+                    "as interrupted)"
                 ) from None
             raise
     if writer.scans == 0:  # nothing to keep: leave no empty run behind
@@ -364,7 +366,7 @@ def _stream_blocks(
     scan_source: str,
     vehicle_source: str,
 ) -> bool:
-    """The recording loop of :func:`record_run`; closes the writer with its marker at the end,
+    """The recording loop of :func:`record_run`; closes the writer as complete at the end,
     on Ctrl-C (``guard.requested``) or when the next block does not fit (then returns True),
     raises on errors."""
     last_time_s: float | None = None

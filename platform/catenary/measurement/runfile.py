@@ -25,10 +25,11 @@ Choices of this project (FORMATS.md leaves them open):
 * **Durability.** On the first append ``flush_interval_s`` after the last flush, staged
   scans are written and the file is flushed, so a power cut loses about that much recording
   (provided HDF5 can still open the file: without SWMR it may refuse a file cut mid-write).
-* **Completion marker.** :meth:`RunFileWriter.close` writes the root attributes
-  ``completed_scans`` (int: the number of scans, the marker) and ``completed_at`` (ISO 8601
-  UTC). Leaving the ``with`` block by an exception closes the file *without* the marker, so
-  the run reads as interrupted.
+* **Recording state.** The file is created with the root attribute ``complete = False``;
+  :meth:`RunFileWriter.close` writes ``completed_scans`` (the number of scans) and
+  ``completed_at`` (ISO 8601 UTC), then ``complete = True``. Leaving the ``with`` block by an
+  exception (:meth:`RunFileWriter.abort`) leaves ``complete = False``, so the run reads as
+  interrupted.
 
 Reading
 -------
@@ -37,12 +38,19 @@ Reading
 one block (plus one chunk of each vehicle dataset). Layout errors raise
 :class:`~catenary.errors.FormatError` naming the file, the HDF5 path and the value.
 
-* **Complete or interrupted.** With the marker, every ``/scans/*`` and ``/cameras/*/lines``
-  dataset must have ``completed_scans`` rows and the ``/vehicle/*`` datasets equal lengths;
-  anything else is a malformed file (FormatError). Without it (the recording PC lost power,
-  or a tool that does not write it) datasets may differ in length: the run is read up to the
-  last scan that every scan dataset has (and the vehicle samples that all four vehicle
-  datasets have), with a :class:`RunFileWarning` naming the file and the usable scans.
+* **Recording state** (FORMATS.md, optional attributes). ``complete = True`` (or, in files
+  of this project's recorder written before ``complete`` existed, ``completed_scans`` alone):
+  the run is read up to ``completed_scans``; a ``/scans/*`` or ``/cameras/*/lines`` dataset
+  holding fewer rows, or ``/vehicle/*`` datasets of unequal lengths, make a malformed file
+  (FormatError), as do ``complete = True`` without ``completed_scans`` and ``complete =
+  False`` with it. ``complete = False`` (the recording was interrupted, e.g. the recording PC
+  lost power): datasets may differ in length, and the run is read up to the last scan that
+  every scan dataset has (and the vehicle samples that all four vehicle datasets have), with
+  one :class:`RunFileWarning` naming the file and the usable scans. No ``complete`` and no
+  ``completed_scans`` (another recorder, or an interrupted recording of this project's
+  before ``complete`` existed: they cannot be told apart): nothing is known, and the file is
+  read without a warning unless its datasets differ in length (then read as an interrupted
+  one, with one warning naming the lengths).
 * **Vehicle sensors.** They are read in chunks as the scans advance and linearly
   interpolated to each scan's time. ``VehicleSamples.fault`` is true for a scan before the
   first or after the last valid sensor sample (the edge sample's value is held) or lying
@@ -96,6 +104,7 @@ __all__ = [
 FORMAT: Final = "catenary-run"
 FORMAT_VERSION: Final = 1
 DIRECTIONS: Final = ("increasing", "decreasing")
+COMPLETE_ATTR: Final = "complete"
 COMPLETED_ATTR: Final = "completed_scans"
 COMPLETED_AT_ATTR: Final = "completed_at"
 
@@ -221,7 +230,10 @@ class RunFileWriter:
         Nominal camera trigger rate [Hz], positive.
     cameras : mapping of name to ``(pixels, bit_depth)``
         At least one camera; ``bit_depth`` 1-16. Lines are uint8 for ``bit_depth <= 8`` and
-        uint16 above.
+        uint16 above; ``pixels`` is the width ``W`` of the lines recorded.
+    offsets_px : mapping of name to int, optional
+        The cameras that record a region of interest: the sensor pixel of their lines' first
+        pixel (``/cameras/{name}`` attribute ``offset_px``, >= 0).
     started_at : str, optional
         ISO 8601 UTC wall-clock time of the first scan; default: now.
     compression : {"gzip", "lzf", "szip", None}
@@ -256,6 +268,7 @@ class RunFileWriter:
         start_chainage_m: float = 0.0,
         scan_rate_hz: float,
         cameras: Mapping[str, tuple[int, int]],
+        offsets_px: Mapping[str, int] | None = None,
         started_at: str | None = None,
         compression: str | None = DEFAULT_COMPRESSION,
         compression_opts: Any = None,
@@ -270,6 +283,14 @@ class RunFileWriter:
             line, track, vehicle, direction, start_chainage_m, scan_rate_hz, started_at
         )
         self._cameras = self._validate_cameras(cameras)
+        self._offsets_px = dict(offsets_px or {})
+        for name, offset in self._offsets_px.items():
+            if name not in self._cameras:
+                raise self._error(f"offsets_px: unknown camera {name!r}")
+            if not _is_int(offset) or offset < 0:
+                raise self._error(
+                    f"camera {name!r}: offset_px must be an integer >= 0, got {offset!r}"
+                )
         if chunk_scans is not None and (
             isinstance(chunk_scans, bool) or not isinstance(chunk_scans, int) or chunk_scans < 1
         ):
@@ -310,6 +331,7 @@ class RunFileWriter:
                     "start_chainage_m": np.float64(start_chainage_m),
                     "started_at": started_at if started_at is not None else _utc_now_iso(),
                     "scan_rate_hz": np.float64(scan_rate_hz),
+                    COMPLETE_ATTR: False,
                 },
                 filters,
                 chunk_scans,
@@ -410,6 +432,8 @@ class RunFileWriter:
                 **_cache_kwargs(rows * pixels * dtype.itemsize, filtered),
             )
             ds.attrs["bit_depth"] = np.int64(bit_depth)
+            if name in self._offsets_px:
+                f[f"cameras/{name}"].attrs["offset_px"] = np.int64(self._offsets_px[name])
             scan_datasets[f"cameras/{name}/lines"] = ds
         for name in _SCAN_SERIES:
             scan_datasets[f"scans/{name}"] = f.create_dataset(f"scans/{name}", **series)
@@ -579,7 +603,8 @@ class RunFileWriter:
         self._last_flush = time.monotonic()
 
     def close(self) -> None:
-        """Write everything staged, the completion marker, and close. Idempotent."""
+        """Write everything staged, ``complete = True`` with ``completed_scans`` and
+        ``completed_at``, and close. Idempotent."""
         if self._closed:
             return
         try:
@@ -587,12 +612,13 @@ class RunFileWriter:
             self._vehicle_data.commit()
             self._file.attrs[COMPLETED_AT_ATTR] = _utc_now_iso()
             self._file.attrs[COMPLETED_ATTR] = np.int64(self._scans)
+            self._file.attrs[COMPLETE_ATTR] = True  # last: a crash before it reads interrupted
         finally:
             self._closed = True
             self._file.close()
 
     def abort(self) -> None:
-        """Write what is staged and close without the completion marker (an interrupted run)."""
+        """Write what is staged and close leaving ``complete = False`` (an interrupted run)."""
         if self._closed:
             return
         try:
@@ -697,8 +723,9 @@ class RunFile:
     path : Path
     header : RunHeader
         Root attributes; ``scans`` is the number of usable scans.
-    complete : bool
-        Whether the file carries the completion marker.
+    complete : bool or None
+        The recording state: True closed properly, False interrupted, None unknown (another
+        recorder: no ``complete`` attribute nor ``completed_scans``).
     vehicle_samples : int
         Usable vehicle sensor samples ``K``.
     vehicle_interval_s : float or None
@@ -733,7 +760,6 @@ class RunFile:
         return FormatError(self.path, problem)
 
     def _open(self) -> None:
-        attrs = self._file.attrs
         fmt = self._attr_str("format")
         if fmt != FORMAT:
             raise self._fail(f"/ attribute format = {fmt!r}, expected {FORMAT!r}")
@@ -762,7 +788,7 @@ class RunFile:
             raise self._fail(f"/ attribute scan_rate_hz = {scan_rate_hz!r}, not positive")
 
         self._series = {name: self._dataset_1d(f"/scans/{name}") for name in _SCAN_SERIES}
-        self._lines, bit_depths = self._camera_datasets()
+        self._lines, bit_depths, offsets = self._camera_datasets()
         self._vehicle = {name: self._dataset_1d(f"/vehicle/{name}") for name in _VEHICLE_SERIES}
 
         lengths = {f"/scans/{name}": int(ds.shape[0]) for name, ds in self._series.items()}
@@ -772,46 +798,7 @@ class RunFile:
         vehicle_lengths = {
             f"/vehicle/{name}": int(ds.shape[0]) for name, ds in self._vehicle.items()
         }
-        marker = attrs.get(COMPLETED_ATTR)
-        if marker is not None:
-            self.complete = True
-            if not _is_int(marker) or int(marker) < 0:
-                raise self._fail(
-                    f"/ attribute {COMPLETED_ATTR} = {_show(marker)}, expected a count of scans"
-                )
-            for where, length in lengths.items():
-                if length != int(marker):
-                    raise self._fail(
-                        f"{where} has {length} scans but the file is marked complete with "
-                        f"{COMPLETED_ATTR} = {int(marker)} (mismatched lengths: "
-                        + ", ".join(f"{w} {n}" for w, n in lengths.items())
-                        + ")"
-                    )
-            if len(set(vehicle_lengths.values())) > 1:
-                raise self._fail(
-                    "mismatched lengths of the vehicle datasets in a complete file: "
-                    + ", ".join(f"{w} {n}" for w, n in vehicle_lengths.items())
-                )
-            scans = int(marker)
-            samples = next(iter(vehicle_lengths.values()))
-        else:
-            self.complete = False
-            scans = min(lengths.values())
-            samples = min(vehicle_lengths.values())
-            detail = []
-            if len(set(lengths.values())) > 1:
-                detail += [f"{w} {n}" for w, n in lengths.items()]
-            if len(set(vehicle_lengths.values())) > 1:
-                detail += [f"{w} {n}" for w, n in vehicle_lengths.items()]
-            warnings.warn(
-                f"{self.path}: no completion marker (/ attribute {COMPLETED_ATTR}): the "
-                f"recording may have been interrupted; reading the {scans} scans and "
-                f"{samples} vehicle samples that every dataset has"
-                + (f" (lengths: {', '.join(detail)})" if detail else ""),
-                RunFileWarning,
-                stacklevel=2 + self._caller_depth,
-            )
-
+        scans, samples = self._recording_state(lengths, vehicle_lengths)
         for where, ds in self._series.items():
             self._check_held(ds, f"/scans/{where}", scans)
         for where, ds in self._lines.items():
@@ -835,7 +822,78 @@ class RunFile:
             scans=scans,
             camera_pixels={name: int(ds.shape[1]) for name, ds in self._lines.items()},
             camera_bit_depth=bit_depths,
+            camera_offset_px=offsets,
         )
+
+    def _recording_state(
+        self, lengths: dict[str, int], vehicle_lengths: dict[str, int]
+    ) -> tuple[int, int]:
+        """The usable scans and vehicle samples from the recording state (module docstring);
+        sets ``complete`` and warns once where the file is interrupted or its datasets
+        differ in length."""
+        complete = self._attr_state()
+        marker = self._file.attrs.get(COMPLETED_ATTR)
+        if marker is not None:
+            if not _is_int(marker) or int(marker) < 0:
+                raise self._fail(
+                    f"/ attribute {COMPLETED_ATTR} = {_show(marker)}, expected a count of scans"
+                )
+            if complete is False:
+                raise self._fail(
+                    f"/ attribute {COMPLETE_ATTR} = False contradicts "
+                    f"{COMPLETED_ATTR} = {int(marker)} (written only with {COMPLETE_ATTR} = True)"
+                )
+        elif complete:
+            raise self._fail(f"/ attribute {COMPLETE_ATTR} = True without {COMPLETED_ATTR}")
+        if marker is not None:  # complete = True, or the marker alone (before `complete`)
+            self.complete: bool | None = True
+            for where, length in lengths.items():
+                if length < int(marker):
+                    raise self._fail(
+                        f"{where} has {length} scans but the file is marked complete with "
+                        f"{COMPLETED_ATTR} = {int(marker)} (lengths: "
+                        + ", ".join(f"{w} {n}" for w, n in lengths.items())
+                        + ")"
+                    )
+            if len(set(vehicle_lengths.values())) > 1:
+                raise self._fail(
+                    "mismatched lengths of the vehicle datasets in a complete file: "
+                    + ", ".join(f"{w} {n}" for w, n in vehicle_lengths.items())
+                )
+            return int(marker), next(iter(vehicle_lengths.values()))
+        self.complete = complete
+        scans = min(lengths.values())
+        samples = min(vehicle_lengths.values())
+        detail = []
+        if len(set(lengths.values())) > 1:
+            detail += [f"{w} {n}" for w, n in lengths.items()]
+        if len(set(vehicle_lengths.values())) > 1:
+            detail += [f"{w} {n}" for w, n in vehicle_lengths.items()]
+        if complete is None and not detail:
+            return scans, samples  # nothing known and nothing amiss: no warning
+        what = (
+            f"/ attribute {COMPLETE_ATTR} = False: the recording was interrupted"
+            if complete is False
+            else "datasets of different lengths"
+        )
+        warnings.warn(
+            f"{self.path}: {what}; reading the {scans} scans and {samples} vehicle samples "
+            "that every dataset has" + (f" (lengths: {', '.join(detail)})" if detail else ""),
+            RunFileWarning,
+            stacklevel=3 + self._caller_depth,
+        )
+        return scans, samples
+
+    def _attr_state(self) -> bool | None:
+        """The root attribute ``complete`` (a bool, or the integer 0 or 1), None if absent."""
+        if COMPLETE_ATTR not in self._file.attrs:
+            return None
+        value = self._attr(COMPLETE_ATTR)
+        if isinstance(value, np.ndarray) and value.shape == (1,):
+            value = value[0]
+        if isinstance(value, bool | np.bool_) or (_is_int(value) and int(value) in (0, 1)):
+            return bool(value)
+        raise self._fail(f"/ attribute {COMPLETE_ATTR} = {_show(value)}, expected true or false")
 
     def _attr(self, name: str, where: str = "/") -> Any:
         attrs = self._file[where].attrs
@@ -911,15 +969,27 @@ class RunFile:
             raise self._fail(f"{where} has shape {ds.shape}, expected 1-D [N]")
         return self._reopen_with_cache(ds)
 
-    def _camera_datasets(self) -> tuple[dict[str, Any], dict[str, int]]:
+    def _camera_datasets(self) -> tuple[dict[str, Any], dict[str, int], dict[str, int]]:
+        """Each camera's lines, bit depth and (where declared) ``offset_px``."""
         group = self._object("/cameras", h5py.Group)
         names = sorted(group.keys())
         if not names:
             raise self._fail("/cameras has no camera")
         lines: dict[str, Any] = {}
         bit_depths: dict[str, int] = {}
+        offsets: dict[str, int] = {}
         for name in names:
-            self._object(f"/cameras/{name}", h5py.Group)
+            camera = self._object(f"/cameras/{name}", h5py.Group)
+            if "offset_px" in camera.attrs:
+                offset = self._attr("offset_px", f"/cameras/{name}")
+                if isinstance(offset, np.ndarray) and offset.shape == (1,):
+                    offset = offset[0]
+                if not _is_int(offset) or int(offset) < 0:
+                    raise self._fail(
+                        f"/cameras/{name} attribute offset_px = {_show(offset)}, "
+                        "expected an integer >= 0"
+                    )
+                offsets[name] = int(offset)
             where = f"/cameras/{name}/lines"
             ds = self._object(where, h5py.Dataset)
             bit_depth = self._attr("bit_depth", where)
@@ -934,13 +1004,14 @@ class RunFile:
                 raise self._fail(f"{where} has dtype {dtype}, expected uint8 or uint16")
             if dtype.itemsize == 1 and int(bit_depth) > 8:
                 raise self._fail(
-                    f"{where} has dtype uint8 but bit_depth = {int(bit_depth)} needs uint16"
+                    f"camera {name!r}: {where} attribute bit_depth = {int(bit_depth)} is "
+                    "above the 8 bits of its dtype uint8 (needs uint16)"
                 )
             if ds.ndim != 2 or ds.shape[1] < 1:
                 raise self._fail(f"{where} has shape {ds.shape}, expected [N, W]")
             lines[name] = self._reopen_with_cache(ds)
             bit_depths[name] = int(bit_depth)
-        return lines, bit_depths
+        return lines, bit_depths, offsets
 
     def _check_held(self, ds: Any, where: str, rows: int) -> None:
         """Refuse to read ``rows`` rows of ``ds`` unless its file stores them (``_rows_held``),
@@ -1031,6 +1102,7 @@ class RunFile:
     ) -> Iterator[ScanBlock]:
         vehicle = _VehicleStream(self._vehicle, self.vehicle_samples, max_gap_s)
         bit_depths = self.header.camera_bit_depth
+        offsets = self.header.camera_offset_px
         for first in range(start, stop, block_scans):
             last = min(first + block_scans, stop)
             position_m = _read_rows(self._series["position_m"], first, last, np.float64)
@@ -1039,6 +1111,7 @@ class RunFile:
                 name: CameraLines(
                     lines=_read_rows(ds, first, last, np.dtype(f"u{ds.dtype.itemsize}")),
                     bit_depth=bit_depths[name],
+                    offset_px=offsets.get(name, 0),
                 )
                 for name, ds in self._lines.items()
             }
@@ -1065,7 +1138,9 @@ class RunFile:
         self.close()
 
     def __repr__(self) -> str:
-        state = "complete" if self.complete else "interrupted"
+        state = {True: "complete", False: "interrupted", None: "recording state unknown"}[
+            self.complete
+        ]
         return f"<RunFile {str(self.path)!r}: {self.header.scans} scans, {state}>"
 
 

@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import click
 
@@ -38,6 +38,7 @@ __all__ = [
     "Processor",
     "ReportRequest",
     "Reporter",
+    "RunChecker",
     "ScanStream",
     "Source",
     "VehicleSource",
@@ -82,6 +83,15 @@ class BlockProcessor(Protocol):
     def process(self, block: ScanBlock) -> WireObservations: ...
 
     def finish(self) -> WireObservations: ...
+
+
+@runtime_checkable
+class RunChecker(Protocol):
+    """A ``BlockProcessor`` that checks a run against its calibration (optional): the core
+    calls ``check_run(header)`` before the first block; it raises a ``UserError`` in one
+    line for a run that does not fit (naming the camera and the values) and may warn."""
+
+    def check_run(self, header: RunHeader) -> None: ...
 
 
 class _KeyAccess:

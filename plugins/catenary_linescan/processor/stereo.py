@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 
 from catenary.arrays import FloatArray
-from catenary.domain import ScanBlock, WireObservations
+from catenary.domain import RunHeader, ScanBlock, WireObservations
 from catenary.errors import UserError
 from catenary.measurement.vehicle import roll_rad
 from catenary_linescan.rig import Rig, read_rig
@@ -186,8 +186,10 @@ class LineScanProcessor:
     Notes
     -----
     Blocks must come in run order (``first_scan`` increasing), each holding every camera of
-    the rig. Each :meth:`process` returns the observations decided so far (possibly of
-    earlier blocks' scans, possibly none); :meth:`finish` returns the rest.
+    the rig (others are ignored). A camera's lines may be a region of interest of its sensor
+    (``CameraLines.offset_px``); :meth:`check_run` refuses a run whose lines do not fit. Each
+    :meth:`process` returns the observations decided so far (possibly of earlier blocks'
+    scans, possibly none); :meth:`finish` returns the rest.
     """
 
     def __init__(self, rig: Rig, config: ProcessorConfig | None = None) -> None:
@@ -222,6 +224,49 @@ class LineScanProcessor:
             mean = self._ratio_sum / self._ratio_count
         return dict(zip(self.names, mean.tolist(), strict=True))
 
+    def check_run(self, header: RunHeader) -> None:
+        """Refuse a run that does not fit the rig, before any scan (``RunChecker``): a rig
+        camera it lacks, or lines that are not the camera's sensor (``_fit_problem``). A
+        camera of the run that the rig lacks (an overview camera) is named in one warning
+        and ignored."""
+        missing = [name for name in self.names if name not in header.camera_pixels]
+        if missing:
+            raise UserError(
+                f"the run has no camera {missing[0]!r} of rig {self.rig.vehicle.name!r} "
+                f"(cameras: {', '.join(header.camera_pixels)})"
+            )
+        for name in self.names:
+            problem = self._fit_problem(
+                name, header.camera_pixels[name], header.camera_offset_px.get(name)
+            )
+            if problem is not None:
+                raise UserError(problem)
+        for name in sorted(set(header.camera_pixels) - set(self.names)):
+            log.warning(
+                "warning: camera %r of the run is not in rig %r: ignored",
+                name,
+                self.rig.vehicle.name,
+            )
+
+    def _fit_problem(self, name: str, width: int, offset_px: int | None) -> str | None:
+        """Why camera ``name``'s lines of ``width`` pixels, starting at sensor pixel
+        ``offset_px`` (None: not declared, the lines must hold the whole sensor), do not fit
+        its calibrated ``pixels``; None when they fit."""
+        pixels = self.rig.cameras[name].camera.pixels
+        if offset_px is None:
+            if width == pixels:
+                return None
+            return (
+                f"camera {name!r}: lines of {width} pixels, but rig {self.rig.vehicle.name!r} "
+                f"calibrated it with {pixels} (a region of interest declares offset_px)"
+            )
+        if offset_px + width <= pixels:
+            return None
+        return (
+            f"camera {name!r}: offset_px {offset_px} + {width} pixels = {offset_px + width}, "
+            f"beyond the {pixels} pixels rig {self.rig.vehicle.name!r} calibrated"
+        )
+
     def process(self, block: ScanBlock) -> WireObservations:
         """Process one block of scans; return the observations now decided."""
         missing = [name for name in self.names if name not in block.cameras]
@@ -230,6 +275,11 @@ class LineScanProcessor:
                 f"scan block at scan {block.first_scan} has no camera {missing[0]!r} "
                 f"of rig {self.rig.vehicle.name!r} (cameras: {', '.join(block.cameras)})"
             )
+        for name in self.names:  # within the sensor (the whole-sensor check: check_run)
+            lines = block.cameras[name]
+            problem = self._fit_problem(name, lines.lines.shape[1], lines.offset_px)
+            if problem is not None:
+                raise UserError(problem)
         if block.first_scan < self._next_scan:
             raise ValueError(
                 f"block at scan {block.first_scan} after scans up to {self._next_scan - 1}"
@@ -246,7 +296,8 @@ class LineScanProcessor:
                     f"camera {name!r} has {lines.lines.shape[0]} lines in a block of {n} scans"
                 )
             features.append(extract_features(lines.lines, lines.bit_depth, config=self.features))
-        candidates = pad_candidates(features, n, self.config.matching.max_candidates)
+        offsets = [block.cameras[name].offset_px for name in self.names]
+        candidates = pad_candidates(features, n, self.config.matching.max_candidates, offsets)
         matches = match(self.cameras, candidates, self.sigma_px, self.config.matching)
         vehicle = block.vehicle
         roll = roll_rad(vehicle.left_mm, vehicle.right_mm, self.rig.vehicle.sensor_baseline_mm)

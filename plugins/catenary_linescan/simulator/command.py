@@ -10,7 +10,7 @@ import click
 from catenary.errors import UserError
 
 from .captures import write_captures
-from .run import record_run
+from .run import record_run, roi_windows
 from .settings import DEMO_RIG_PATH, parse_settings
 from .simulation import Simulation
 
@@ -33,9 +33,11 @@ def simulate_run(
     wire_type: str,
     curve_radius_m: float | None,
     overwrite: bool,
+    roi: tuple[str, ...] = (),
 ) -> None:
     """Simulate a recorded run ``out`` (with its truth and mast register beside it) of the rig
-    at ``rig_path`` (None: the demo rig), and its calibration captures at ``captures_path``."""
+    at ``rig_path`` (None: the demo rig), and its calibration captures at ``captures_path``;
+    ``roi``: regions of interest, each ``CAMERA=OFFSET:WIDTH``."""
     settings: dict[str, Any] = {
         "rig": rig_path or DEMO_RIG_PATH,
         "length_m": length_m,
@@ -51,8 +53,10 @@ def simulate_run(
         "curve_radius_m": curve_radius_m,
     }
     try:
+        regions = _regions(roi)
         parsed = parse_settings(settings)
         simulation = Simulation(parsed)
+        roi_windows(simulation, regions)  # refused before anything is written
         if captures_path is not None:
             if captures_path.exists() and not overwrite:
                 raise UserError(f"{captures_path}: already exists (not overwritten)")
@@ -61,7 +65,12 @@ def simulate_run(
         label = f"simulating {out.name}"
         with click.progressbar(length=simulation.scans, label=label, show_pos=True) as bar:
             recorded = record_run(
-                out, parsed, overwrite=overwrite, progress=bar.update, simulation=simulation
+                out,
+                parsed,
+                overwrite=overwrite,
+                progress=bar.update,
+                simulation=simulation,
+                roi=regions,
             )
         click.echo(
             f"wrote {recorded.run_path} ({recorded.scans} scans), {recorded.truth_path}, "
@@ -75,3 +84,17 @@ def simulate_run(
     except OSError as exc:
         where = f"{exc.filename}: " if exc.filename else ""
         raise click.ClickException(f"{where}{exc.strerror or exc}") from None
+
+
+def _regions(values: tuple[str, ...]) -> dict[str, tuple[int, int]]:
+    """``--roi CAMERA=OFFSET:WIDTH`` values by camera; ``UserError`` naming a malformed one."""
+    regions: dict[str, tuple[int, int]] = {}
+    for value in values:
+        name, _, window = value.partition("=")
+        offset, _, width = window.partition(":")
+        if not (name and offset.isdigit() and width.isdigit()) or name in regions:
+            raise UserError(
+                f"--roi {value!r}: expected CAMERA=OFFSET:WIDTH (whole pixels), once per camera"
+            )
+        regions[name] = (int(offset), int(width))
+    return regions

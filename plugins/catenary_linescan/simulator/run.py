@@ -20,7 +20,7 @@ from .settings import SimulationSettings, parse_settings
 from .simulation import Simulation
 from .truth import TruthWriter, masts_path_for, truth_path_for, write_mast_register
 
-__all__ = ["RecordedRun", "record_run"]
+__all__ = ["RecordedRun", "record_run", "roi_windows"]
 
 
 @dataclass(frozen=True)
@@ -41,6 +41,7 @@ def record_run(
     overwrite: bool = False,
     progress: Callable[[int], None] | None = None,
     simulation: Simulation | None = None,
+    roi: Mapping[str, tuple[int, int]] | None = None,
 ) -> RecordedRun:
     """Simulate a run and write it with its ground truth and mast register.
 
@@ -56,6 +57,9 @@ def record_run(
         Called with the number of scans written after every chunk.
     simulation : Simulation, optional
         An already built simulation of these settings.
+    roi : mapping of camera name to ``(offset_px, width)``, optional
+        Cameras that record a region of interest: the rendered lines cut to sensor pixels
+        ``offset_px .. offset_px + width - 1``, written with ``offset_px`` (FORMATS.md).
     """
     run_path = Path(path)
     parsed = settings if isinstance(settings, SimulationSettings) else parse_settings(settings)
@@ -69,6 +73,7 @@ def record_run(
     if not run_path.parent.is_dir():
         raise UserError(f"{run_path.parent}: no such directory")
     header = sim.header()
+    windows = roi_windows(sim, roi or {})
     created: list[Path] = []
     samples = 0
     try:
@@ -81,14 +86,19 @@ def record_run(
             start_chainage_m=header.start_chainage_m,
             started_at=header.started_at,
             scan_rate_hz=header.scan_rate_hz,
-            cameras={c.name: (c.pixels, c.bit_depth) for c in sim.rig.cameras},
+            cameras={
+                c.name: (windows[c.name].stop - windows[c.name].start, c.bit_depth)
+                for c in sim.rig.cameras
+            },
+            offsets_px={name: offset for name, (offset, _) in (roi or {}).items()},
             overwrite=overwrite,
         ) as writer:
             created.append(run_path)
             with TruthWriter(truth_path, sim, run_file=run_path.name) as truth:
                 created.append(truth_path)
                 for chunk in sim.chunks():
-                    writer.append(chunk.position_m, chunk.time_s, chunk.lines)
+                    lines = {name: line[:, windows[name]] for name, line in chunk.lines.items()}
+                    writer.append(chunk.position_m, chunk.time_s, lines)
                     s = chunk.sensors
                     writer.append_vehicle(s.time_s, s.left_mm, s.right_mm, s.lateral_mm)
                     samples += s.time_s.shape[0]
@@ -102,3 +112,20 @@ def record_run(
             file.unlink(missing_ok=True)
         raise
     return RecordedRun(run_path, truth_path, masts_path, sim.scans, samples)
+
+
+def roi_windows(sim: Simulation, roi: Mapping[str, tuple[int, int]]) -> dict[str, slice]:
+    """Each camera's recorded pixels: its region of interest in ``roi``, else the sensor;
+    ``UserError`` for a camera the rig lacks or a region outside the sensor."""
+    pixels = {c.name: c.pixels for c in sim.rig.cameras}
+    for name in roi:
+        sim.rig.camera(name)  # UserError naming the rig's cameras
+    windows = {name: slice(0, n) for name, n in pixels.items()}
+    for name, (offset, width) in roi.items():
+        if not (offset >= 0 and width >= 1 and offset + width <= pixels[name]):
+            raise UserError(
+                f"region of interest of camera {name!r}: offset_px {offset} and width {width} "
+                f"do not lie within its {pixels[name]} pixels"
+            )
+        windows[name] = slice(offset, offset + width)
+    return windows

@@ -61,9 +61,12 @@ class Candidates:
 
 
 def pad_candidates(
-    features: Sequence[FeatureTable], scans: int, max_candidates: int = 24
+    features: Sequence[FeatureTable],
+    scans: int,
+    max_candidates: int = 24,
+    offsets_px: Sequence[int] = (),
 ) -> Candidates:
-    """Gather flat per-camera features into ``(n, C, K)`` arrays.
+    """Gather flat per-camera features into ``(n, C, K)`` arrays in camera pixels.
 
     Parameters
     ----------
@@ -73,6 +76,9 @@ def pad_candidates(
         Scans in the block (``n``); ``scan`` values must lie in ``[0, n)``.
     max_candidates : int
         Cap on ``K``; in a scan with more candidates the weakest (lowest contrast) are dropped.
+    offsets_px : sequence of int, length C (or empty: all 0)
+        Each camera's region of interest: line pixel ``i`` is camera pixel
+        ``offsets_px[c] + i``, added to every position.
 
     Returns
     -------
@@ -113,8 +119,10 @@ def pad_candidates(
             rows = rows[np.lexsort((centre[rows], scan[rows]))]
             scan_kept = scan[rows]
         slot = np.arange(rows.shape[0]) - np.searchsorted(scan_kept, scan_kept, side="left")
+        offset = float(offsets_px[column]) if offsets_px else 0.0
         for name, values in out.items():
-            values[scan_kept, column, slot] = np.asarray(getattr(table, name), np.float64)[rows]
+            line_px = np.asarray(getattr(table, name), np.float64)[rows]
+            values[scan_kept, column, slot] = line_px + offset
         contrast[scan_kept, column, slot] = strength[rows]
         polarity[scan_kept, column, slot] = np.asarray(table.polarity)[rows]
         detection[scan_kept, column, slot] = rows
