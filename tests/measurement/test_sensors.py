@@ -2,10 +2,16 @@
 
 from __future__ import annotations
 
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.signal import butter, sosfiltfilt
 
+from catenary.config import Settings
+from catenary.errors import UserError
+from catenary.measurement.process import vehicle_filter_hz
 from catenary.measurement.sensors import (
     DEFAULT_FILTER_HZ,
     FILTER_ORDER,
@@ -195,3 +201,32 @@ def test_off_or_too_slow_leaves_the_samples_as_they_are(
 def test_a_cutoff_must_be_zero_or_positive(cutoff_hz: float) -> None:
     with pytest.raises(ValueError, match="cut-off"):
         SensorSmoother(cutoff_hz, 0.005)
+
+
+@pytest.mark.parametrize(
+    ("section", "expected"),
+    [
+        ({}, 5.0),
+        ({"vehicle_filter_hz": 0}, 0.0),
+        ({"vehicle_filter_hz": 8.5}, 8.5),
+        ({"vehicle_filter_hz": -1}, "processing.vehicle_filter_hz must be 0 (off) or a positive"),
+        ({"vehicle_filter_hz": "5"}, "processing.vehicle_filter_hz must be 0 (off)"),
+        ({"vehicle_filter_hz": True}, "processing.vehicle_filter_hz must be 0 (off)"),
+        ({"vehicle_filter": 5}, "unknown key processing.vehicle_filter (did you mean"),
+    ],
+)
+def test_the_processing_section_sets_the_cutoff(
+    tmp_path: Path, section: dict[str, object], expected: float | str
+) -> None:
+    settings = Settings(
+        database_url="sqlite://",
+        data_dir=tmp_path,
+        config_path=tmp_path / "config.toml",
+        sections={"processing": section},
+    )
+    if isinstance(expected, float):
+        assert vehicle_filter_hz(settings) == expected
+    else:
+        with pytest.raises(UserError, match=re.escape(expected)) as raised:
+            vehicle_filter_hz(settings)
+        assert str(raised.value).startswith(f"{tmp_path / 'config.toml'}: ")

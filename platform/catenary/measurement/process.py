@@ -5,7 +5,9 @@
    type, the line and track, the database's migration; a run already stored from the same
    file content and rig calibration is said so and left alone (``--replace`` processes it
    again and replaces it).
-2. **Measure** (pass 1): the run streams in blocks through the processor (a plugin: the
+2. **Measure** (pass 1): the run streams in blocks, its vehicle sensors smoothed without
+   phase lag (:mod:`catenary.measurement.sensors`, ``[processing] vehicle_filter_hz``, 5 Hz
+   unless told otherwise), through the processor (a plugin: the
    ``linescan-stereo`` one unless told otherwise) and the measurement chain
    (:mod:`catenary.measurement.chain`: vehicle compensation, stagger-angle correction) into an
    intermediate Parquet file; the stagger's turning points (the registration points) are
@@ -65,7 +67,7 @@ import pyarrow as pa
 from sqlalchemy import Engine, select
 from sqlalchemy.exc import IntegrityError
 
-from catenary.config import Settings
+from catenary.config import Settings, did_you_mean
 from catenary.domain import (
     CODE_LENGTH,
     NAME_LENGTH,
@@ -81,6 +83,7 @@ from catenary.measurement.chainage import ChainageAlignment, TurningPointFinder,
 from catenary.measurement.masts import read_register
 from catenary.measurement.runfile import open_run
 from catenary.measurement.samples import SampleWriter, read_sample_batches
+from catenary.measurement.sensors import DEFAULT_FILTER_HZ, SensorSmoother
 from catenary.measurement.spans import SpanAccumulator, SpanLayout, SpanStatistics
 from catenary.measurement.vehicle import load_vehicle_geometry
 from catenary.plugins import BlockProcessor, PluginRegistry
@@ -167,6 +170,8 @@ class ProcessResult:
     faulty: int = 0
     minimum: SpanMeasurement | None = None
     samples_path: Path | None = None
+    sensors: str = ""
+    """The vehicle sensors' filter and estimated noise (``SensorSmoother.describe``)."""
 
     def warning(self, run_path: Path) -> str | None:
         """The line to warn with when the run measured no span (it covered too little track,
@@ -214,9 +219,36 @@ class ProcessResult:
             notes.append(f"{self.faulty} with a vehicle sensor fault (not in the span figures)")
         extra = f" ({'; '.join(notes)})" if notes else ""
         lines.append(f"samples    {self.samples} in {self.samples_path}{extra}")
+        if self.sensors:
+            lines.append(f"sensors    {self.sensors}")
         if self.replaced:
             lines.append("replaced   the run's earlier results")
         return lines
+
+
+PROCESSING_KEYS = frozenset({"vehicle_filter_hz"})
+"""Keys of the config's ``[processing]`` section."""
+
+
+def vehicle_filter_hz(settings: Settings) -> float:
+    """``[processing] vehicle_filter_hz``: the cut-off of the vehicle sensors' zero-phase
+    low-pass [Hz] (``catenary.measurement.sensors``; default ``DEFAULT_FILTER_HZ``, 0: off).
+    A bad section, key or value is a ``UserError`` naming the config file, key and value."""
+    where = settings.config_path or "config"
+    section = settings.sections.get("processing", {})
+    if not isinstance(section, Mapping):
+        raise UserError(f"{where}: [processing] must be a table")
+    unknown = sorted(set(section) - PROCESSING_KEYS)
+    if unknown:
+        hint = did_you_mean(unknown[0], PROCESSING_KEYS)
+        raise UserError(f"{where}: unknown key processing.{unknown[0]}{hint}")
+    value = section.get("vehicle_filter_hz", DEFAULT_FILTER_HZ)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 <= value < math.inf:
+        raise UserError(
+            f"{where}: processing.vehicle_filter_hz must be 0 (off) or a positive number of "
+            f"hertz, not {value!r}"
+        )
+    return float(value)
 
 
 @dataclass(frozen=True)
@@ -224,6 +256,7 @@ class _Inputs:
     """Everything checked before anything is written."""
 
     header: RunHeader
+    vehicle_filter_hz: float
     line: str
     track: str
     register: TrackRegister | None
@@ -286,6 +319,7 @@ def _check_names(request: ProcessRequest) -> None:
 
 def _check_inputs(request: ProcessRequest, settings: Settings, registry: PluginRegistry) -> _Inputs:
     _check_names(request)
+    filter_hz = vehicle_filter_hz(settings)
     with open_run(request.run_path) as run:
         header = run.header
     if header.scans == 0:
@@ -314,6 +348,7 @@ def _check_inputs(request: ProcessRequest, settings: Settings, registry: PluginR
         raise UserError(f"{request.rig_path}: cannot read the rig calibration ({exc})") from None
     return _Inputs(
         header=header,
+        vehicle_filter_hz=filter_hz,
         line=line,
         track=track,
         register=register,
@@ -346,9 +381,11 @@ def _measure(
     chain: MeasurementChain,
     writer: SampleWriter,
     progress: Callable[[int], None],
-) -> tuple[TurningPointFinder, float]:
-    """Pass 1: every block through the processor (each call inside ``boundary``) and the
-    chain; returns the turning points found and the run's last encoder position [m]."""
+    filter_hz: float,
+) -> tuple[TurningPointFinder, float, SensorSmoother]:
+    """Pass 1: every block, its vehicle sensors smoothed below ``filter_hz``, through the
+    processor (each call inside ``boundary``) and the chain; returns the turning points found,
+    the run's last encoder position [m] and the sensors' smoother (their noise)."""
     finder = TurningPointFinder()
     last_position = 0.0
 
@@ -365,13 +402,14 @@ def _measure(
         return value
 
     with open_run(request.run_path) as run:
-        for block in run.blocks(BLOCK_SCANS):
+        smoother = SensorSmoother(filter_hz, run.vehicle_interval_s)
+        for block in run.blocks(BLOCK_SCANS, smoother=smoother):
             keep(chain.push(block, observations(processor.process, block)))
             if block.scans:
                 last_position = float(block.position_m[-1])
             progress(block.scans)
     keep(chain.finish(observations(processor.finish)))
-    return finder, last_position
+    return finder, last_position, smoother
 
 
 def _align(
@@ -645,13 +683,14 @@ def process_run(
         old_samples: str | None = None
         try:
             with SampleWriter(measured, _MEASURED_SCHEMA) as writer:
-                finder, last_position = _measure(
+                finder, last_position, smoother = _measure(
                     request,
                     processor,
                     lambda: registry.boundary("processor", request.processor),
                     MeasurementChain(geometry),
                     writer,
                     progress,
+                    inputs.vehicle_filter_hz,
                 )
             alignment, layout, ends = _align(inputs, finder, last_position)
             with SampleWriter(partial) as writer:
@@ -760,4 +799,5 @@ def process_run(
         faulty=faulty,
         minimum=minimum,
         samples_path=kept,
+        sensors=smoother.describe(),
     )
