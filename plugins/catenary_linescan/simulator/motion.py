@@ -59,8 +59,8 @@ class MotionParams:
     curve_roll_deg: float = 0.6
     curve_shift_mm: float = 10.0
     bogie_pitch_m: float = 17.5
-    sensor_rate_hz: float = 400.0
-    sensor_noise_mm: float = 0.1
+    sensor_rate_hz: float = 200.0
+    sensor_noise_mm: float = 0.3
 
     def check(self) -> None:
         """``UserError`` for values outside what the model means."""
