@@ -51,14 +51,28 @@ def stretches_of(t: np.ndarray, v: np.ndarray, max_gap_s: float) -> list[slice]:
     return bounds
 
 
-def whole_series(t: np.ndarray, v: np.ndarray, padlen: int, max_gap_s: float) -> np.ndarray:
-    """Each stretch filtered at once by ``scipy.signal.sosfiltfilt``, odd extensions of
-    ``padlen`` samples (NaN elsewhere)."""
+def whole_series(t: np.ndarray, v: np.ndarray, smoother: SensorSmoother) -> np.ndarray:
+    """Each stretch at once: extended by ``margin`` samples along the least-squares line of
+    its ``edge_fit`` end samples (``np.polyfit``), filtered by ``scipy.signal.sosfiltfilt``
+    without padding of its own (NaN elsewhere)."""
     sos = butter(FILTER_ORDER, DEFAULT_FILTER_HZ, fs=RATE_HZ, output="sos")
+    pad, fit = smoother.margin, smoother.edge_fit
     out = np.full_like(v, np.nan)
-    for part in stretches_of(t, v, max_gap_s):
-        n = part.stop - part.start
-        out[:, part] = sosfiltfilt(sos, v[:, part], axis=1, padlen=min(padlen, n - 1))
+    for part in stretches_of(t, v, 2.5 / RATE_HZ):
+        x = v[:, part]
+        n = x.shape[1]
+        ends = []
+        for y, at in (
+            (x[:, :fit], np.arange(-pad, 0)),
+            (x[:, -fit:], np.arange(pad) + min(n, fit)),
+        ):
+            if y.shape[1] == 1:
+                ends.append(np.repeat(y, pad, axis=1))
+                continue
+            slope, intercept = np.polyfit(np.arange(y.shape[1]), y.T, 1)
+            ends.append(intercept[:, None] + slope[:, None] * at)
+        extended = np.concatenate([ends[0], x, ends[1]], axis=1)
+        out[:, part] = sosfiltfilt(sos, extended, axis=1, padtype=None)[:, pad : pad + n]
     return out
 
 
@@ -88,7 +102,7 @@ def stream(
 def test_streamed_equals_each_stretch_filtered_whole(chunk: int) -> None:
     t, v = faulty_series()
     smoother = SensorSmoother(DEFAULT_FILTER_HZ, 1 / RATE_HZ)
-    expected = whole_series(t, v, smoother.margin, 2.5 / RATE_HZ)
+    expected = whole_series(t, v, smoother)
     # the samples themselves: scans exactly at every sample time
     got = stream(t, v, chunk, smoother).at(t)
     valid = np.isfinite(v).all(axis=0)
@@ -167,14 +181,15 @@ def test_body_motion_passes_and_noise_is_removed_and_estimated(rate_hz: float) -
 
 def test_noise_free_body_motion_is_kept_without_lag() -> None:
     # 60 s of 0.2-2 Hz motion of up to 20 mm: no delay, 0.07 % of the amplitude at 2 Hz;
-    # within a few tenths of a second of a stretch's ends, the odd extension's curvature
+    # within a few tenths of a second of a stretch's ends, the body's curvature over the
+    # 20 samples (0.1 s) of the end's line: up to 5 m/s² of acceleration here
     t = np.arange(12_000) / RATE_HZ
     motion = body_motion(t)
     got = stream(t, motion, 1000, SensorSmoother(DEFAULT_FILTER_HZ, 1 / RATE_HZ)).at(t)
     error = np.abs(np.stack([got.left_mm, got.right_mm, got.lateral_mm]) - motion)
     inner = (t > t[0] + 0.5) & (t < t[-1] - 0.5)
     assert error[:, inner].max() < 0.01
-    assert error.max() < 0.25
+    assert error.max() < 0.5
 
 
 @pytest.mark.parametrize(
