@@ -104,7 +104,7 @@ class SensorSmoother:
     -----
     :meth:`push` valid samples in time order, then :meth:`finish`; each returns the samples now
     final (fewer than pushed: an open stretch's last :attr:`margin` samples wait for the
-    samples after them). Holds at most ``margin`` samples plus one push.
+    samples after them). Holds at most ``2 margin`` samples plus one push.
     """
 
     def __init__(self, cutoff_hz: float, interval_s: float | None) -> None:
