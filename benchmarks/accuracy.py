@@ -10,10 +10,12 @@ own seeds) and compares it with the ground truth, per case:
   camera models;
 - the processor (features, matching, tracking) turns the run's blocks into wire observations
   in the roof frame; the core then applies the vehicle compensation (``roof_to_track`` with
-  the noisy displacement sensors), the stagger-angle correction (``catenary.measurement.wear``: θ
-  from the measured stagger gradient), the along-track screen of the widths
-  (``catenary.measurement.wear``: a width that departs from its neighbours for a few scans, at a
-  fitting, is left out) and the wire type's residual thickness, as the pipeline does.
+  the noisy displacement sensors, by default 0.3 mm at 200 Hz, smoothed below 5 Hz without lag
+  as ``catenary process`` does: ``catenary.measurement.sensors``), the stagger-angle
+  correction (``catenary.measurement.wear``: θ from the measured stagger gradient), the
+  along-track screen of the widths (``catenary.measurement.wear``: a width that departs from
+  its neighbours for a few scans, at a fitting, is left out) and the wire type's residual
+  thickness, as the pipeline does.
 
 Per case it prints, for the running contact wires: the residual thickness error (RMS, 95th
 percentile, max), the height and stagger errors in the track frame (RMS, max), the recall of
@@ -27,6 +29,8 @@ within 2 mm; recall 99.5 %; no false wire.
     .venv/bin/python benchmarks/accuracy.py --quick         # shorter sections
     .venv/bin/python benchmarks/accuracy.py --cases overlap blind-camera
     .venv/bin/python benchmarks/accuracy.py --no-screen     # without the along-track screen
+    .venv/bin/python benchmarks/accuracy.py --sensor-noise-mm 0.5 --sensor-rate-hz 100
+    .venv/bin/python benchmarks/accuracy.py --vehicle-filter-hz 0   # sensors unsmoothed
 """
 
 from __future__ import annotations
@@ -43,6 +47,7 @@ from typing import Any
 import numpy as np
 
 from catenary.domain import CameraLines, ScanBlock
+from catenary.measurement.sensors import DEFAULT_FILTER_HZ
 from catenary.measurement.vehicle import roof_to_track
 from catenary.measurement.wear import (
     corrected_wear_width_mm,
@@ -159,8 +164,9 @@ def calibrated_rig(workdir: Path) -> Rig:
     return rig_from_reports(sim_rig.vehicle, reports, source=captures.name)
 
 
-def simulation(case: Case, quick: bool) -> Simulation:
-    settings = {"length_m": 150.0, **case.settings}
+def simulation(case: Case, quick: bool, sensors: dict[str, float] | None = None) -> Simulation:
+    """The case's simulation; ``sensors``: ``sensor_noise_mm``, ``sensor_rate_hz`` that differ."""
+    settings = {"length_m": 150.0, **case.settings, **(sensors or {})}
     if quick:
         settings["length_m"] = min(settings["length_m"], 150.0 if settings.get("overlap") else 60.0)
     sim = Simulation(parse_settings(settings))
@@ -207,8 +213,16 @@ _TRUTH_WIRE = (
 )
 
 
-def run_case(case: Case, rig: Rig, quick: bool, screen: bool = True) -> dict[str, Any]:
-    sim = simulation(case, quick)
+def run_case(
+    case: Case,
+    rig: Rig,
+    quick: bool,
+    screen: bool = True,
+    *,
+    sensors: dict[str, float] | None = None,
+    filter_hz: float = DEFAULT_FILTER_HZ,
+) -> dict[str, Any]:
+    sim = simulation(case, quick, sensors)
     processor = LineScanProcessor(rig)
     got = Collected()
     bit_depth = {c.name: c.bit_depth for c in sim.rig.cameras}
@@ -229,8 +243,10 @@ def run_case(case: Case, rig: Rig, quick: bool, screen: bool = True) -> dict[str
         for name in _TRUTH_WIRE:
             got.add_truth(name, getattr(truth, name))
         got.add_truth("position_m", chunk.position_m)
+        # the sensors as catenary process gives them to the chain: smoothed without lag
+        vehicle = sim.processed_vehicle_at(chunk.time_s, filter_hz)
         for name in ("left_mm", "right_mm", "lateral_mm"):
-            got.add_truth("sensor_" + name, getattr(chunk.vehicle, name))
+            got.add_truth("sensor_" + name, getattr(vehicle, name))
     t0 = time.perf_counter()
     got.add_rows(processor.finish())
     processing += time.perf_counter() - t0
@@ -370,7 +386,27 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="widths as the processor gives them, without the along-track screen",
     )
+    parser.add_argument(
+        "--sensor-noise-mm", type=float, help="displacement sensor noise (default: simulator's)"
+    )
+    parser.add_argument(
+        "--sensor-rate-hz", type=float, help="displacement sensor rate (default: simulator's)"
+    )
+    parser.add_argument(
+        "--vehicle-filter-hz",
+        type=float,
+        default=DEFAULT_FILTER_HZ,
+        help=f"the sensors' zero-phase low-pass, 0: off (default {DEFAULT_FILTER_HZ:g})",
+    )
     args = parser.parse_args(argv)
+    sensors = {
+        key: value
+        for key, value in (
+            ("sensor_noise_mm", args.sensor_noise_mm),
+            ("sensor_rate_hz", args.sensor_rate_hz),
+        )
+        if value is not None
+    }
     cases = [c for c in CASES if not args.cases or c.name in args.cases]
     unknown = set(args.cases or []) - {c.name for c in CASES}
     if unknown:
@@ -381,7 +417,14 @@ def main(argv: list[str] | None = None) -> int:
     print(f"rig calibrated from simulated captures: worst reprojection RMS {worst:.3f} px")
     results = []
     for case in cases:
-        result = run_case(case, rig, args.quick, not args.no_screen)
+        result = run_case(
+            case,
+            rig,
+            args.quick,
+            not args.no_screen,
+            sensors=sensors,
+            filter_hz=args.vehicle_filter_hz,
+        )
         results.append(result)
         print(
             f"  {case.name}: {result['scans']} scans in {result['seconds']:.0f} s "

@@ -43,11 +43,11 @@ KNOWN_KEYS: dict[str, set[str]] = {
     "plugins": {"disabled"},
 }
 CORE_SECTIONS = frozenset(
-    {"limits", "maintenance", "notifications", "processors", "record", "scheduler"}
+    {"limits", "maintenance", "notifications", "processing", "processors", "record", "scheduler"}
 )
 """Sections other modules of the core read, each checking its keys as it reads them: [limits]
 (``catenary.limits``), [maintenance] (alert rules), [notifications], [scheduler], [record]
-(``catenary record``), [processors.NAME] (``catenary process``)."""
+(``catenary record``), [processing] and [processors.NAME] (``catenary process``)."""
 
 
 def did_you_mean(name: str, known: Iterable[str], *, brackets: bool = False) -> str:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import csv
 import os
+import re
 import shutil
 import signal
 import socket
@@ -70,7 +71,18 @@ def invoke(*args: str) -> Result:
     return CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
 
 
-SETTINGS = {"length_m": 250.0, "overlap": True, "speed_kmh": 160.0, "seed": 5}
+SETTINGS = {
+    "length_m": 250.0,
+    "overlap": True,
+    "speed_kmh": 160.0,
+    "seed": 5,
+    # the noisiest sensors the 2 mm target covers (issue 14): 0.3 mm at 100 Hz
+    "sensor_noise_mm": 0.3,
+    "sensor_rate_hz": 100.0,
+}
+
+POSITION_TOLERANCE_MM = 2.0
+"""Height and stagger against the truth, worst sample (the processor's target)."""
 ENCODER_ERRORS = {"encoder_scale_error": 0.004, "start_chainage_error_m": -2.5}
 
 
@@ -145,6 +157,7 @@ def truth_of(path: Path) -> dict[str, np.ndarray]:
         return {
             "chainage_m": f["/scans/chainage_m"][:],
             "stagger_mm": f["/wires/stagger_mm"][:],
+            "height_mm": f["/wires/height_mm"][:],
             "running": f["/wires/running"][:],
             "present": f["/wires/present"][:],
             "contact": f["/wires/contact"][:],
@@ -197,6 +210,38 @@ def test_a_run_is_stored_with_its_spans_and_samples_against_the_truth(
     for row in spans:
         per_span.setdefault(row.span, set()).add(row.wire)
     assert max(len(w) for w in per_span.values()) == 2
+
+
+def test_heights_and_staggers_are_within_2_mm_of_the_truth_with_noisy_sensors(
+    simulated: Simulated, database: str, isolated_environment: Path
+) -> None:
+    """Sensors of 0.3 mm at 100 Hz: each scan's roll noise, through the 4-5 m from the sensors
+    to the wire, would be 1.2 mm RMS of stagger unsmoothed (4-5 mm at worst); smoothed below
+    5 Hz without lag, every sample is within 2 mm, and the summary gives the noise."""
+    result = process(simulated, database)
+    assert result.exit_code == 0, result.output
+    samples = samples_of(database, isolated_environment, 1)
+    truth = truth_of(simulated.truth)
+    scan = samples["scan"]
+    distance = np.abs(truth["stagger_mm"][scan] - samples["stagger_mm"][:, None])
+    distance = np.where(truth["contact"] & truth["present"][scan], distance, np.inf)
+    nearest = np.argmin(distance, axis=1)
+    rows = np.arange(scan.shape[0])
+    good = (distance[rows, nearest] < 20.0) & truth["running"][scan, nearest]
+    good &= ~samples["vehicle_fault"]
+    assert np.count_nonzero(good) > 5000
+    stagger_error = samples["stagger_mm"][good] - truth["stagger_mm"][scan, nearest][good]
+    height_error = samples["height_mm"][good] - truth["height_mm"][scan, nearest][good]
+    assert np.max(np.abs(stagger_error)) < POSITION_TOLERANCE_MM
+    assert np.max(np.abs(height_error)) < POSITION_TOLERANCE_MM
+    (sensors,) = [line for line in result.output.splitlines() if line.startswith("sensors")]
+    noise = re.fullmatch(
+        r"sensors    sampled at 100 Hz, low-pass 5 Hz \(zero phase\); noise left (\S+), "
+        r"right (\S+), lateral (\S+) mm RMS",
+        sensors,
+    )
+    assert noise is not None, sensors
+    np.testing.assert_allclose([float(v) for v in noise.groups()], 0.3, rtol=0.1)
 
 
 def test_processing_twice_says_so_and_replace_replaces(

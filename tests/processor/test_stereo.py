@@ -3,8 +3,9 @@
 The rig is calibrated as users calibrate it: the simulator renders the calibration tool's
 captures and ``calibrate_from_captures`` measures them (targets assigned with the mounting
 drawing's nominal poses); the processor never sees the true cameras. Its observations go
-through the core's chain (``roof_to_track``, ``catenary.measurement.wear``, the wire type's residual
-thickness) and are compared with the truth of the running contact wires.
+through the core's chain (the vehicle sensors smoothed as ``catenary process`` smooths them,
+``roof_to_track``, ``catenary.measurement.wear``, the wire type's residual thickness) and are
+compared with the truth of the running contact wires.
 
 Tolerances are the figures measured (``benchmarks/accuracy.py``) with margin; the targets
 are 0.05 mm RMS and 0.10 mm worst for the residual thickness, 2 mm for height and stagger.
@@ -109,6 +110,8 @@ def render(
     chunks = [
         sim.chunk(i) for i in range(inside[0] // sim.chunk_scans, inside[-1] // sim.chunk_scans + 1)
     ]
+    # the sensors as the processing gives them: smoothed (catenary.measurement.sensors)
+    vehicle = sim.processed_vehicle_at(np.concatenate([c.time_s for c in chunks]))
     fields = (
         "present",
         "running",
@@ -125,10 +128,7 @@ def render(
         time_s=np.concatenate([c.time_s for c in chunks]),
         lines={n: np.concatenate([c.lines[n] for c in chunks]) for n in chunks[0].lines},
         bit_depth={c.name: c.bit_depth for c in sim.rig.cameras},
-        vehicle={
-            k: np.concatenate([getattr(c.vehicle, k) for c in chunks])
-            for k in ("time_s", "left_mm", "right_mm", "lateral_mm")
-        },
+        vehicle={k: getattr(vehicle, k) for k in ("time_s", "left_mm", "right_mm", "lateral_mm")},
         truth={k: np.concatenate([getattr(c.truth, k) for c in chunks]) for k in fields},
         contact=np.array([w.contact for w in sim.scene.wires]),
         wire_type=sim.scene.wire_type.name,

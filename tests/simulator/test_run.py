@@ -12,6 +12,7 @@ import pytest
 
 from catenary.errors import UserError
 from catenary.measurement.runfile import open_run
+from catenary.measurement.sensors import DEFAULT_FILTER_HZ, SENSOR_NAMES, SensorSmoother
 from catenary.measurement.vehicle import roof_to_track
 from catenary_linescan.simulator import open_simulation, record_run
 from catenary_linescan.simulator.rig import SimRig
@@ -112,9 +113,28 @@ def test_vehicle_sensors_in_the_run_reproduce_the_truth(recorded, small_rig: Sim
         np.testing.assert_allclose(sx[ok], stagger[ok], atol=1e-6)
         np.testing.assert_allclose(sz[ok], height[ok], atol=1e-6)
         mx, mz = roof_to_track(x, z, left, right, lateral, small_rig.vehicle)
-        # sensor noise 0.1 mm, a 1.4 m lever on the roll: within a few millimetres
+        # sensor noise 0.3 mm, 4.2-4.4 m from the sensors to the wire over a 1.8 m baseline:
+        # 1.0-1.1 mm RMS of stagger from the roll, within a few millimetres
         assert np.abs(mx - stagger)[ok].max() < 5.0
         assert np.abs(mz - height)[ok].max() < 2.0
+        # smoothed below 5 Hz as catenary process does: under half that RMS, within 2 mm
+        smoother = SensorSmoother(DEFAULT_FILTER_HZ, run.vehicle_interval_s)
+        smoothed = list(run.blocks(10_000, smoother=smoother))
+        sx, sz = roof_to_track(
+            x,
+            z,
+            *(
+                np.concatenate([getattr(b.vehicle, k) for b in smoothed])[:, None]
+                for k in SENSOR_NAMES
+            ),
+            small_rig.vehicle,
+        )
+        assert np.sqrt(np.mean((sx - stagger)[ok] ** 2)) < 0.5
+        assert np.abs(sx - stagger)[ok].max() < 2.0
+        assert np.abs(sz - height)[ok].max() < 1.0
+        noise = smoother.noise_mm
+        assert noise is not None
+        np.testing.assert_allclose(noise, 0.3, rtol=0.1)
 
 
 def test_encoder_error_is_in_the_run(recorded) -> None:

@@ -7,7 +7,9 @@
    type, the line and track, the database's migration; a run already stored from the same
    file content and rig calibration is said so and left alone (``--replace`` processes it
    again and replaces it).
-2. **Measure** (pass 1): the run streams in blocks through the processor (a plugin: the
+2. **Measure** (pass 1): the run streams in blocks, its vehicle sensors smoothed without
+   phase lag (:mod:`catenary.measurement.sensors`, ``[processing] vehicle_filter_hz``, 5 Hz
+   unless told otherwise), through the processor (a plugin: the
    ``linescan-stereo`` one unless told otherwise) and the measurement chain
    (:mod:`catenary.measurement.chain`: vehicle compensation, stagger-angle correction) into an
    intermediate Parquet file; the stagger's turning points (the registration points) are
@@ -67,7 +69,7 @@ import pyarrow as pa
 from sqlalchemy import Engine, select
 from sqlalchemy.exc import IntegrityError
 
-from catenary.config import Settings
+from catenary.config import Settings, did_you_mean
 from catenary.domain import (
     CODE_LENGTH,
     NAME_LENGTH,
@@ -83,6 +85,7 @@ from catenary.measurement.chainage import ChainageAlignment, TurningPointFinder,
 from catenary.measurement.masts import read_register
 from catenary.measurement.runfile import RunFile, open_run
 from catenary.measurement.samples import SampleWriter, read_sample_batches
+from catenary.measurement.sensors import DEFAULT_FILTER_HZ, SensorSmoother
 from catenary.measurement.spans import SpanAccumulator, SpanLayout, SpanStatistics
 from catenary.measurement.vehicle import load_vehicle_geometry
 from catenary.plugins import BlockProcessor, PluginRegistry, RunChecker
@@ -169,6 +172,8 @@ class ProcessResult:
     faulty: int = 0
     minimum: SpanMeasurement | None = None
     samples_path: Path | None = None
+    sensors: str = ""
+    """The vehicle sensors' filter and estimated noise (``SensorSmoother.describe``)."""
 
     def warning(self, run_path: Path) -> str | None:
         """The line to warn with when the run measured no span (it covered too little track,
@@ -216,9 +221,36 @@ class ProcessResult:
             notes.append(f"{self.faulty} with a vehicle sensor fault (not in the span figures)")
         extra = f" ({'; '.join(notes)})" if notes else ""
         lines.append(f"samples    {self.samples} in {self.samples_path}{extra}")
+        if self.sensors:
+            lines.append(f"sensors    {self.sensors}")
         if self.replaced:
             lines.append("replaced   the run's earlier results")
         return lines
+
+
+PROCESSING_KEYS = frozenset({"vehicle_filter_hz"})
+"""Keys of the config's ``[processing]`` section."""
+
+
+def vehicle_filter_hz(settings: Settings) -> float:
+    """``[processing] vehicle_filter_hz``: the cut-off of the vehicle sensors' zero-phase
+    low-pass [Hz] (``catenary.measurement.sensors``; default ``DEFAULT_FILTER_HZ``, 0: off).
+    A bad section, key or value is a ``UserError`` naming the config file, key and value."""
+    where = settings.config_path or "config"
+    section = settings.sections.get("processing", {})
+    if not isinstance(section, Mapping):
+        raise UserError(f"{where}: [processing] must be a table")
+    unknown = sorted(set(section) - PROCESSING_KEYS)
+    if unknown:
+        hint = did_you_mean(unknown[0], PROCESSING_KEYS)
+        raise UserError(f"{where}: unknown key processing.{unknown[0]}{hint}")
+    value = section.get("vehicle_filter_hz", DEFAULT_FILTER_HZ)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 <= value < math.inf:
+        raise UserError(
+            f"{where}: processing.vehicle_filter_hz must be 0 (off) or a positive number of "
+            f"hertz, not {value!r}"
+        )
+    return float(value)
 
 
 @dataclass(frozen=True)
@@ -226,6 +258,7 @@ class _Inputs:
     """Everything checked before anything is written."""
 
     header: RunHeader
+    vehicle_filter_hz: float
     line: str
     track: str
     register: TrackRegister | None
@@ -290,6 +323,7 @@ def _check_inputs(
     request: ProcessRequest, header: RunHeader, settings: Settings, registry: PluginRegistry
 ) -> _Inputs:
     _check_names(request)
+    filter_hz = vehicle_filter_hz(settings)
     if header.scans == 0:
         raise UserError(f"{request.run_path}: the run holds no scan")
     wire_types = registry.wire_types()
@@ -316,6 +350,7 @@ def _check_inputs(
         raise UserError(f"{request.rig_path}: cannot read the rig calibration ({exc})") from None
     return _Inputs(
         header=header,
+        vehicle_filter_hz=filter_hz,
         line=line,
         track=track,
         register=register,
@@ -355,9 +390,11 @@ def _measure(
     chain: MeasurementChain,
     writer: SampleWriter,
     progress: Callable[[int], None],
-) -> tuple[TurningPointFinder, float]:
-    """Pass 1: every block through the processor (each call inside ``boundary``) and the
-    chain; returns the turning points found and the run's last encoder position [m]."""
+    filter_hz: float,
+) -> tuple[TurningPointFinder, float, SensorSmoother]:
+    """Pass 1: every block, its vehicle sensors smoothed below ``filter_hz``, through the
+    processor (each call inside ``boundary``) and the chain; returns the turning points found,
+    the run's last encoder position [m] and the sensors' smoother (their noise)."""
     finder = TurningPointFinder()
     last_position = 0.0
 
@@ -373,13 +410,14 @@ def _measure(
                 raise TypeError(f"returned {type(value).__name__}, not WireObservations")
         return value
 
-    for block in run.blocks(BLOCK_SCANS):
+    smoother = SensorSmoother(filter_hz, run.vehicle_interval_s)
+    for block in run.blocks(BLOCK_SCANS, smoother=smoother):
         keep(chain.push(block, observations(processor.process, block)))
         if block.scans:
             last_position = float(block.position_m[-1])
         progress(block.scans)
     keep(chain.finish(observations(processor.finish)))
-    return finder, last_position
+    return finder, last_position, smoother
 
 
 def _align(
@@ -668,13 +706,14 @@ def _process_open_run(
         old_samples: str | None = None
         try:
             with SampleWriter(measured, _MEASURED_SCHEMA) as writer:
-                finder, last_position = _measure(
+                finder, last_position, smoother = _measure(
                     run_file,
                     processor,
                     lambda: registry.boundary("processor", request.processor),
                     MeasurementChain(geometry),
                     writer,
                     progress,
+                    inputs.vehicle_filter_hz,
                 )
             alignment, layout, ends = _align(inputs, finder, last_position)
             with SampleWriter(partial) as writer:
@@ -783,4 +822,5 @@ def _process_open_run(
         faulty=faulty,
         minimum=minimum,
         samples_path=kept,
+        sensors=smoother.describe(),
     )

@@ -51,9 +51,11 @@ one block (plus one chunk of each vehicle dataset). Layout errors raise
   before ``complete`` existed: they cannot be told apart): nothing is known, and the file is
   read without a warning unless its datasets differ in length (then read as an interrupted
   one, with one warning naming the lengths).
-* **Vehicle sensors.** They are read in chunks as the scans advance and linearly
-  interpolated to each scan's time. ``VehicleSamples.fault`` is true for a scan before the
-  first or after the last valid sensor sample (the edge sample's value is held) or lying
+* **Vehicle sensors.** They are read in chunks as the scans advance
+  (:class:`catenary.measurement.sensors.SensorStream`), optionally smoothed without phase lag
+  (a :class:`~catenary.measurement.sensors.SensorSmoother`; unsmoothed by default) and
+  linearly interpolated to each scan's time. ``VehicleSamples.fault`` is true for a scan before
+  the first or after the last valid sensor sample (the edge sample's value is held) or lying
   inside a gap between consecutive valid samples longer than ``max_gap_factor`` (default
   :data:`DEFAULT_MAX_GAP_FACTOR` = 2.5, i.e. two or more consecutive samples missing) times
   the run's median sample interval (interpolated across the gap). A sample whose
@@ -81,9 +83,10 @@ import h5py
 import numpy as np
 from numpy.typing import ArrayLike
 
-from catenary.arrays import BoolArray, FloatArray, UInt8Array, UInt16Array
-from catenary.domain import DEFAULT_BLOCK_SCANS, CameraLines, RunHeader, ScanBlock, VehicleSamples
+from catenary.arrays import FloatArray, UInt8Array, UInt16Array
+from catenary.domain import DEFAULT_BLOCK_SCANS, CameraLines, RunHeader, ScanBlock
 from catenary.errors import FormatError, UserError
+from catenary.measurement.sensors import SensorSmoother, SensorStream
 from catenary.text import control_character_problem
 
 __all__ = [
@@ -1075,13 +1078,16 @@ class RunFile:
         start: int = 0,
         stop: int | None = None,
         max_gap_factor: float = DEFAULT_MAX_GAP_FACTOR,
+        smoother: SensorSmoother | None = None,
     ) -> Iterator[ScanBlock]:
         """Stream scans ``start:stop`` (default: all usable) in blocks of ``block_scans``.
 
         Each :class:`ScanBlock` holds fresh arrays (``position_m``, ``time_s`` ``[n]``, each
         camera's lines ``[n, W]``) and the vehicle sensors interpolated to the scan times
         (each ``[n]``, ``fault`` as in the module docstring, with a gap meaning more than
-        ``max_gap_factor`` median sample intervals). The last block may be shorter.
+        ``max_gap_factor`` median sample intervals), smoothed by ``smoother`` if given (a new
+        one per call, made for :attr:`vehicle_interval_s`; it holds the noise estimate once
+        the blocks are read). The last block may be shorter.
         """
         if not self._file:
             raise ValueError(f"{self.path}: run file is closed")
@@ -1095,12 +1101,19 @@ class RunFile:
             raise ValueError(f"max_gap_factor must be positive, got {max_gap_factor!r}")
         interval = self.vehicle_interval_s
         max_gap_s = math.inf if interval is None else max_gap_factor * interval
-        return self._blocks(int(block_scans), int(start), int(stop), max_gap_s)
+        return self._blocks(int(block_scans), int(start), int(stop), max_gap_s, smoother)
 
     def _blocks(
-        self, block_scans: int, start: int, stop: int, max_gap_s: float
+        self,
+        block_scans: int,
+        start: int,
+        stop: int,
+        max_gap_s: float,
+        smoother: SensorSmoother | None,
     ) -> Iterator[ScanBlock]:
-        vehicle = _VehicleStream(self._vehicle, self.vehicle_samples, max_gap_s)
+        vehicle = SensorStream(
+            self._read_vehicle, self.vehicle_samples, max_gap_s, SERIES_CHUNK, smoother
+        )
         bit_depths = self.header.camera_bit_depth
         offsets = self.header.camera_offset_px
         for first in range(start, stop, block_scans):
@@ -1122,6 +1135,14 @@ class RunFile:
                 cameras=cameras,
                 vehicle=vehicle.at(time_s),
             )
+
+    def _read_vehicle(self, first: int, last: int) -> tuple[FloatArray, FloatArray]:
+        """Vehicle samples ``first:last``: ``time_s [k]`` and the three sensors ``[3, k]``."""
+        t = _read_rows(self._vehicle["time_s"], first, last, np.float64)
+        v = np.empty((3, last - first), dtype=np.float64)
+        for row, name in enumerate(_VEHICLE_SERIES[1:]):
+            v[row] = _read_rows(self._vehicle[name], first, last, np.float64)
+        return t, v
 
     def close(self) -> None:
         self._file.close()
@@ -1180,91 +1201,3 @@ def _read_rows(ds: Any, first: int, last: int, dtype: Any) -> Any:
             ds.file.filename, f"{ds.name}[{first}:{last}] cannot be read ({_reason(exc)})"
         ) from None
     return out
-
-
-class _VehicleStream:
-    """The vehicle sensors read forward in chunks and interpolated to increasing scan times.
-
-    Holds one chunk of valid samples (plus the last sample of the previous chunk), so memory
-    is bounded whatever the number of samples.
-    """
-
-    def __init__(self, datasets: Mapping[str, Any], samples: int, max_gap_s: float) -> None:
-        self._datasets = datasets
-        self._samples = samples
-        self._max_gap_s = max_gap_s
-        self._next = 0
-        self._t = np.empty(0, dtype=np.float64)
-        self._v = np.empty((3, 0), dtype=np.float64)
-        # _bad[k]: a faulty (non-finite) sample lies between valid samples k and k + 1
-        self._bad = np.empty(0, dtype=bool)
-
-    def _read_more(self) -> bool:
-        """Read the next chunk, keeping only the last sample held. False at the end."""
-        if self._next >= self._samples:
-            return False
-        first = self._next
-        last = min(first + SERIES_CHUNK, self._samples)
-        t = _read_rows(self._datasets["time_s"], first, last, np.float64)
-        v = np.empty((3, last - first), dtype=np.float64)
-        for row, name in enumerate(_VEHICLE_SERIES[1:]):
-            v[row] = _read_rows(self._datasets[name], first, last, np.float64)
-        valid = np.isfinite(v).all(axis=0)
-        faulty_so_far = np.cumsum(~valid)
-        kept = np.flatnonzero(valid)
-        held_bad = self._bad[-1:]
-        if kept.size == 0:
-            held_bad = held_bad | bool(faulty_so_far[-1])
-            bad = held_bad
-        else:
-            held_bad = held_bad | bool(faulty_so_far[kept[0]])
-            between = np.diff(faulty_so_far[kept]) > 0
-            trailing = faulty_so_far[-1] > faulty_so_far[kept[-1]]
-            bad = np.concatenate((held_bad, between, [trailing]))
-        self._t = np.concatenate((self._t[-1:], t[kept]))
-        self._v = np.concatenate((self._v[:, -1:], v[:, kept]), axis=1)
-        self._bad = bad
-        self._next = last
-        return True
-
-    def at(self, scan_time_s: FloatArray) -> VehicleSamples:
-        """The sensors at non-decreasing ``scan_time_s`` ``[n]`` (after any earlier call's)."""
-        n = scan_time_s.shape[0]
-        values = np.zeros((3, n), dtype=np.float64)
-        fault = np.ones(n, dtype=bool)
-        i = 0
-        while i < n:
-            while (self._t.size == 0 or self._t[-1] < scan_time_s[i]) and self._read_more():
-                pass
-            if self._t.size == 0:
-                break  # no valid sample at all: zeros, every scan a fault
-            exhausted = self._next >= self._samples
-            j = n if exhausted else int(np.searchsorted(scan_time_s, self._t[-1], side="right"))
-            j = max(j, i + 1)
-            self._interpolate(scan_time_s[i:j], values[:, i:j], fault[i:j])
-            i = j
-        return VehicleSamples(
-            time_s=scan_time_s.copy(),
-            left_mm=values[0],
-            right_mm=values[1],
-            lateral_mm=values[2],
-            fault=fault,
-        )
-
-    def _interpolate(self, t: FloatArray, out: FloatArray, fault: BoolArray) -> None:
-        st, sv = self._t, self._v
-        m = st.shape[0]
-        left = np.searchsorted(st, t, side="right") - 1
-        before = left < 0
-        left = np.clip(left, 0, m - 1)
-        right = np.minimum(left + 1, m - 1)
-        t_left = st[left]
-        t_right = st[right]
-        exact = t_left == t
-        after = (right == left) & ~exact & ~before  # past the last sample
-        span = t_right - t_left
-        weight = np.where(span > 0, (t - t_left) / np.where(span > 0, span, 1.0), 0.0)
-        weight = np.where(before, 0.0, weight)
-        out[...] = sv[:, left] + weight * (sv[:, right] - sv[:, left])
-        gap = ~exact & ((span > self._max_gap_s) | self._bad[left])
-        fault[...] = before | after | gap

@@ -17,7 +17,7 @@ any block of scans can be computed on its own and memory never grows with the ru
   by ``curve_roll_deg`` and shifts outward by ``curve_shift_mm`` (unbalanced lateral
   acceleration), and its centre lies inward of the track centre line by the versine of the
   bogie pitch ``a² / (8 R)`` (the car body is a chord of the curve). These ramp in and out
-  over 20 m at the curve's ends.
+  over 20 m at the curve's ends, the roll and shift saturating smoothly (full at R <= 1500 m).
 - **Displacement sensors** (FORMATS.md vehicle compensation model, exactly): from the pose,
   ``left = bounce + (b/2) tan φ``, ``right = bounce - (b/2) tan φ``, ``lateral = lateral``,
   sampled on their own clock (``sensor_rate_hz``, a random phase against the scans) with
@@ -59,8 +59,8 @@ class MotionParams:
     curve_roll_deg: float = 0.6
     curve_shift_mm: float = 10.0
     bogie_pitch_m: float = 17.5
-    sensor_rate_hz: float = 400.0
-    sensor_noise_mm: float = 0.1
+    sensor_rate_hz: float = 200.0
+    sensor_noise_mm: float = 0.3
 
     def check(self) -> None:
         """``UserError`` for values outside what the model means."""
@@ -242,7 +242,10 @@ class Motion:
         t = np.asarray(t, dtype=np.float64)
         kappa = self.run_curvature_per_m(self.chainage_m(t))
         p = self.params
-        scale = np.clip(np.abs(kappa) * 1500.0, 0.0, 1.0)  # full at R <= 1500 m
+        # full at R <= 1500 m, reached with no kink: a body on its suspension turns no corner
+        # in roll or shift (a clip's corner would be a step in the roll rate)
+        x = np.minimum(np.abs(kappa) * 1500.0, 1.0)
+        scale = x * (2.0 - x)
         outward = -np.sign(kappa) * scale
         roll = self._roll(t) + outward * math.radians(p.curve_roll_deg)
         chord = 1000.0 * kappa * p.bogie_pitch_m**2 / 8.0  # body centre inward

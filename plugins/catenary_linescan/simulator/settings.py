@@ -28,8 +28,8 @@ Keys of the settings mapping (all optional; units in the names):
 ``encoder_scale_error``    relative (e.g. 0.003); none: drawn from the seed
 ``start_chainage_error_m`` header minus true start chainage; none: drawn from the seed
 ``roll_std_deg``, ``lateral_std_mm``, ``bounce_std_mm``: body motion (0.25, 8, 5)
-``sensor_rate_hz``         displacement sensor sample rate (400)
-``sensor_noise_mm``        displacement sensor noise (0.1)
+``sensor_rate_hz``         displacement sensor sample rate (200)
+``sensor_noise_mm``        displacement sensor noise (0.3)
 ``noise``                  shot and read noise on (true)
 ``shot_noise``             ``poisson`` or ``gaussian`` (``poisson``)
 ``blur``                   optical blur on (true)
@@ -90,8 +90,8 @@ class SimulationSettings:
     roll_std_deg: float = 0.25
     lateral_std_mm: float = 8.0
     bounce_std_mm: float = 5.0
-    sensor_rate_hz: float = 400.0
-    sensor_noise_mm: float = 0.1
+    sensor_rate_hz: float = 200.0
+    sensor_noise_mm: float = 0.3
     noise: bool = True
     shot_noise: str = "poisson"
     blur: bool = True

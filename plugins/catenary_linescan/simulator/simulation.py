@@ -26,6 +26,8 @@ import numpy as np
 
 from catenary.arrays import BoolArray, FloatArray, UInt8Array, UInt16Array
 from catenary.domain import RunHeader, VehicleSamples
+from catenary.measurement.runfile import DEFAULT_MAX_GAP_FACTOR
+from catenary.measurement.sensors import DEFAULT_FILTER_HZ, SensorSmoother, SensorStream
 from catenary.measurement.vehicle import track_to_roof
 
 from .motion import Motion, SensorSamples
@@ -355,6 +357,32 @@ class Simulation:
             lateral_mm=np.interp(t, samples.time_s, samples.lateral_mm),
             fault=np.zeros(t.shape, dtype=bool),
         )
+
+    def processed_vehicle_at(
+        self, t: FloatArray, cutoff_hz: float = DEFAULT_FILTER_HZ
+    ) -> VehicleSamples:
+        """The displacement sensors at scan times ``t`` as ``catenary process`` gives them from
+        the recording: its samples smoothed below ``cutoff_hz`` without phase lag and
+        interpolated (:mod:`catenary.measurement.sensors`). Only the samples within the
+        filter's reach of ``t`` are drawn, so a section costs what it covers."""
+        motion = self.motion
+        interval_s = 1.0 / self.settings.sensor_rate_hz
+        smoother = SensorSmoother(cutoff_hz, interval_s)
+        reach = smoother.margin + 2
+        recorded_first = self.sensor_range(0)[0]
+        recorded_stop = self.sensor_range(self.chunk_count - 1)[1]
+        first = max(recorded_first, motion.sensor_index_before(float(t[0])) - reach)
+        stop = min(recorded_stop, motion.sensor_index_before(float(t[-1])) + 2 + reach)
+        samples = motion.sensor_samples(first, stop)
+        values = np.stack((samples.left_mm, samples.right_mm, samples.lateral_mm))
+        stream = SensorStream(
+            lambda a, b: (samples.time_s[a:b], values[:, a:b]),
+            stop - first,
+            DEFAULT_MAX_GAP_FACTOR * interval_s,
+            stop - first,
+            smoother,
+        )
+        return stream.at(t)
 
     def _glare(self, distance_m: FloatArray) -> FloatArray:
         """Sun glare strength 0-1 per scan: on over ``sun_blind_span``, ramped over 3 m."""
