@@ -23,7 +23,7 @@ from typing import Any
 
 import h5py
 import numpy as np
-from hypothesis import event, given, settings
+from hypothesis import event, given
 from hypothesis import strategies as st
 
 from catenary.errors import UserError
@@ -299,7 +299,7 @@ def test_a_mutated_run_file_is_read_or_refused_in_one_line(
     read_or_refuse(path, changes[0].field if single else None)
 
 
-@settings(max_examples=30, deadline=5000, derandomize=True)
+@examples(30)
 @given(content=st.binary(max_size=600).flatmap(lambda b: st.sampled_from((b, HDF5_SIGNATURE + b))))
 def test_bytes_that_are_not_a_run_file_are_refused_in_one_line(
     examples_folder: Path, content: bytes
