@@ -295,13 +295,22 @@ class LeasedScheduler(BackgroundScheduler):  # type: ignore[misc]
     def __init__(self, holds: Callable[[], bool], recheck_s: float, **options: Any) -> None:
         self._holds = holds
         self._recheck_s = recheck_s
+        self._processing = threading.Lock()  # held by a pass looking for due jobs
         super().__init__(**options)
 
     def _process_jobs(self) -> float | None:
         if not self._holds():
             return self._recheck_s
-        wait_s: float | None = super()._process_jobs()
+        with self._processing:
+            wait_s: float | None = super()._process_jobs()
         return wait_s
+
+    def pause(self) -> None:
+        """Pause, and return once a pass that was already looking for due jobs has submitted
+        them (else a shutdown right after could close the executor under it)."""
+        super().pause()
+        with self._processing:
+            pass
 
 
 def make_scheduler(
