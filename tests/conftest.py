@@ -265,3 +265,17 @@ def build() -> type[Build]:
     """Row builders (``build.run(session)``, ``build.span(run)``, ``build.alert(...)``,
     ``build.alert_on(span, ...)``)."""
     return Build
+
+
+@pytest.fixture
+def small_rig_file(tmp_path: Path) -> Path:
+    """The demo rig's file with 512-pixel cameras of 8x the pitch: the same fields of view."""
+    from catenary_linescan.simulator import DEMO_RIG_PATH
+
+    text = DEMO_RIG_PATH.read_text()
+    text = text.replace("pixels = 4096", "pixels = 512").replace(
+        "pixel_pitch_um = 7.0", "pixel_pitch_um = 56.0"
+    )
+    path = tmp_path / "small.sim.toml"
+    path.write_text(text)
+    return path

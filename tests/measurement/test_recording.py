@@ -24,7 +24,6 @@ from catenary.plugins import PluginRegistry, hookimpl
 from catenary.plugins.types import Source, VehicleSource
 from catenary_can.decode import DEFAULT_METRES_PER_PULSE
 from catenary_can.reader import load_database, open_log
-from catenary_linescan.simulator.settings import DEMO_RIG_PATH
 
 # -- fakes: a scan source and a vehicle sensor source that misbehave on request ---------------
 
@@ -197,16 +196,6 @@ T0 = 1_700_000_000.0
 PERIOD_S = 0.005
 
 
-def small_rig(tmp_path: Path) -> Path:
-    text = DEMO_RIG_PATH.read_text()
-    text = text.replace("pixels = 4096", "pixels = 512").replace(
-        "pixel_pitch_um = 7.0", "pixel_pitch_um = 56.0"
-    )
-    path = tmp_path / "small.sim.toml"
-    path.write_text(text)
-    return path
-
-
 def can_log(path: Path, start_s: float, stop_s: float) -> Path:
     """A BLF log from ``start_s`` to ``stop_s`` (scan clock: T0 is scan time 0) with faults:
     a dropped frame at 0.3 s, the right sensor stuck 0.5-1.0 s, lateral out of range at
@@ -238,8 +227,10 @@ def can_log(path: Path, start_s: float, stop_s: float) -> Path:
 
 
 @pytest.mark.slow
-def test_record_the_simulator_with_a_can_log_as_vehicle_source(tmp_path: Path) -> None:
-    rig = small_rig(tmp_path)
+def test_record_the_simulator_with_a_can_log_as_vehicle_source(
+    tmp_path: Path, small_rig_file: Path
+) -> None:
+    rig = small_rig_file
     log = can_log(tmp_path / "sensors.blf", -0.2, 2.0)
     out = tmp_path / "run.h5"
     result = record(
@@ -276,9 +267,11 @@ def test_record_the_simulator_with_a_can_log_as_vehicle_source(tmp_path: Path) -
 
 
 @pytest.mark.slow
-def test_record_the_simulator_alone_uses_its_own_sensor_samples(tmp_path: Path) -> None:
+def test_record_the_simulator_alone_uses_its_own_sensor_samples(
+    tmp_path: Path, small_rig_file: Path
+) -> None:
     out = tmp_path / "run.h5"
-    rig = small_rig(tmp_path)
+    rig = small_rig_file
     result = record(
         out, "--source", "simulator", "--source-option", f"rig={rig}",
         "--source-option", "length_m=6", "--source-option", "scan_rate_hz=200",

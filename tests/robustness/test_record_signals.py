@@ -18,20 +18,8 @@ import numpy as np
 import pytest
 
 from catenary.measurement.runfile import RunFileWarning, open_run
-from catenary_linescan.simulator.settings import DEMO_RIG_PATH
 
 BLOCK_SCANS = 256
-
-
-def small_rig(folder: Path) -> Path:
-    """The demo rig with 512-pixel cameras, so that the simulator records fast."""
-    text = DEMO_RIG_PATH.read_text()
-    text = text.replace("pixels = 4096", "pixels = 512").replace(
-        "pixel_pitch_um = 7.0", "pixel_pitch_um = 56.0"
-    )
-    path = folder / "small.sim.toml"
-    path.write_text(text)
-    return path
 
 
 def read_back(path: Path) -> tuple[int, int, bool]:
@@ -51,13 +39,13 @@ def read_back(path: Path) -> tuple[int, int, bool]:
     ids=["SIGINT", "SIGTERM", "SIGKILL"],
 )
 def test_a_signal_during_record_keeps_every_complete_block(
-    tmp_path: Path, signum: int, exit_code: int
+    tmp_path: Path, small_rig_file: Path, signum: int, exit_code: int
 ) -> None:
     out = tmp_path / "run.h5"
     recording = subprocess.Popen(
         [
             sys.executable, "-m", "catenary.cli", "record", str(out),
-            "--source", "simulator", "--source-option", f"rig={small_rig(tmp_path)}",
+            "--source", "simulator", "--source-option", f"rig={small_rig_file}",
             "--source-option", "length_m=5000", "--block-scans", str(BLOCK_SCANS),
         ],
         stdout=subprocess.PIPE,

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
 
 import pytest
 
@@ -29,15 +28,3 @@ def small_rig(demo_rig: SimRig) -> SimRig:
         for cam in demo_rig.cameras
     )
     return dataclasses.replace(demo_rig, cameras=cameras)
-
-
-@pytest.fixture
-def small_rig_file(tmp_path: Path) -> Path:
-    """The demo rig's file with 512-pixel cameras of 8x the pitch: the same fields of view."""
-    text = DEMO_RIG_PATH.read_text()
-    text = text.replace("pixels = 4096", "pixels = 512").replace(
-        "pixel_pitch_um = 7.0", "pixel_pitch_um = 56.0"
-    )
-    path = tmp_path / "small.sim.toml"
-    path.write_text(text)
-    return path
