@@ -34,7 +34,7 @@ Tracking holds back the points of the last metres until they are decided:
                            it): set both to the line's wire width where it has one
 ``min_track_m``            shortest track taken for a wire (``tracking.MIN_TRACK_M``)
 ``max_gap_m``              longest gap a track bridges (1.0)
-``messenger_gap_mm``       height above the lowest contact wire of a messenger (300)
+``messenger_gap_mm``       height above the lowest contact wire of a messenger (200)
 ``width_tolerance_mm``     cameras further than this from the median face width are left out
 ``table_tolerance``        largest relative difference between the camera model's and the
                            look-up table's resolution accepted before a warning (0.03)

@@ -23,7 +23,14 @@ the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 m
 4. **removes messengers by height** at release: a point more than ``messenger_gap_mm`` above
    the lowest confirmed track at its scan (each track's height interpolated across the
    scans where it was missed) is not a contact wire — a messenger, or a contact wire raised
-   out of running at an overlap's end on its way to its anchor;
+   out of running at an overlap's end on its way to its anchor. The contact wire is the
+   lowest wire of its system, so a point with a lower wire's evidence beneath it is not
+   reported as a contact wire either, even when that wire's points made no confirmed track
+   (a worn wire seen intermittently by daylight): ``LOWER_WIRE_POINTS`` verified points of
+   other tracks within ``max_gap_m`` along the track (as far as the tracker sees ahead),
+   more than
+   ``messenger_gap_mm`` below the point's track, mark it ``selection_uncertain`` (a column
+   of the released points): the selection cannot tell which wire runs there;
 5. **numbers** each track at its first contact point (0, 1, ... in order of appearance) and
    keeps the number through the run: a track that ended up to ``reidentify_m`` before and
    near where the new one starts hands its number over;
@@ -47,7 +54,23 @@ from numpy.typing import NDArray
 
 from catenary.arrays import FloatArray, IntArray
 
-__all__ = ["MIN_TRACK_M", "TrackedPoints", "TrackingConfig", "WireTracker", "link_fragments"]
+__all__ = [
+    "MIN_TRACK_M",
+    "UNCERTAIN_COLUMN",
+    "TrackedPoints",
+    "TrackingConfig",
+    "WireTracker",
+    "link_fragments",
+]
+
+UNCERTAIN_COLUMN = "selection_uncertain"
+"""Column of :class:`TrackedPoints` set where a lower wire's points lie beneath the point's
+track (step 4 of the module docstring)."""
+
+LOWER_WIRE_POINTS = 5
+"""Fewest verified points beneath a track that show a lower wire there (``MIN_TRACK_POINTS``:
+as few as a track needs; a fitting below the contact wire does not exist, and noise is not
+verified by three cameras)."""
 
 
 MIN_TRACK_POINTS = 5
@@ -99,11 +122,14 @@ class TrackingConfig:
         Shortest track accepted as a wire [m] (``MIN_TRACK_M``).
     min_coverage : float
         Fraction of its scans in which a track must have a point to be a wire: noise does
-        not chain across gaps into a track.
+        not chain across gaps into a track (points verified by three cameras do not chain
+        by chance), while a worn wire that the cameras see in one scan of ten (its face as
+        bright as a white sky) still makes one.
     messenger_gap_mm : float
         Height above the lowest contact wire from which a wire is a messenger [mm]: below the
-        400 mm a messenger keeps above its contact wire at its lowest (the shortest dropper
-        mid-span), well above the noise of the heights.
+        300 mm a messenger keeps above its contact wire at its lowest (the shortest dropper
+        mid-span of the lowest systems), well above the noise of the heights. A contact wire
+        raised this far above the running one is out of running.
     reidentify_m : float
         A contact wire track that ended this recently [m] (two spans: a wire raised out of
         running at an overlap can leave the view and come back) and a new one whose first
@@ -120,8 +146,8 @@ class TrackingConfig:
     gap_gate_mm_per_m: float = 40.0
     max_gap_m: float = 1.0
     min_track_m: float = MIN_TRACK_M
-    min_coverage: float = 0.5
-    messenger_gap_mm: float = 300.0
+    min_coverage: float = 0.1
+    messenger_gap_mm: float = 200.0
     reidentify_m: float = 100.0
     reidentify_mm: float = 60.0
 
@@ -335,6 +361,9 @@ class WireTracker:
         # position, x and z of the verified point released last
         self._last_released: dict[int, tuple[int, float, float]] = {}
         self._last_verified: dict[int, tuple[int, float, float, float]] = {}
+        # verified points released within max_gap_m: position, height, track
+        self._behind = (np.zeros(0), np.zeros(0), np.zeros(0, np.int64))
+        self._released_m = -np.inf  # position of the last point released
         self._next_track = 0
         self._next_wire = 0
         self._last_m = -np.inf
@@ -760,6 +789,7 @@ class WireTracker:
         lowest = self._lowest_wire(released, tracks)
         with np.errstate(invalid="ignore"):
             contact = wire_track & ~(released.z_mm > lowest + self.config.messenger_gap_mm)
+        uncertain = contact & self._lower_wire_beneath(released, contact, tracks)
         # numbers, for tracks whose first contact point this is (in order of appearance)
         wire = np.full(released.scan.shape[0], -1, dtype=np.int64)
         rows = np.flatnonzero(contact)
@@ -788,8 +818,59 @@ class WireTracker:
             position_m=released.position_m[keep],
             x_mm=released.x_mm[keep],
             z_mm=released.z_mm[keep],
-            columns={k: v[keep] for k, v in released.columns.items()},
+            columns={
+                **{k: v[keep] for k, v in released.columns.items()},
+                UNCERTAIN_COLUMN: uncertain[keep],
+            },
         )
+
+    def _lower_wire_beneath(
+        self, released: _Store, candidate: NDArray[np.bool_], tracks: Mapping[int, _Track]
+    ) -> NDArray[np.bool_]:
+        """Whether a lower wire shows beneath each ``candidate`` released point (step 4).
+
+        Counts the verified points of unconfirmed tracks (the confirmed ``tracks`` are
+        ``_lowest_wire``'s: released before, now, or held ahead) within ``max_gap_m`` along
+        the track that lie more than
+        ``messenger_gap_mm`` below the point's own track (its height interpolated at theirs);
+        ``LOWER_WIRE_POINTS`` of them are a lower wire. Remembers the verified points
+        released now for the next call.
+        """
+        store, reach = self._store, self.config.max_gap_m
+        ahead = store.verified
+        now = released.verified
+        behind_m, behind_z, behind_track = self._behind
+        position = np.concatenate([behind_m, released.position_m[now], store.position_m[ahead]])
+        height = np.concatenate([behind_z, released.z_mm[now], store.z_mm[ahead]])
+        track = np.concatenate([behind_track, released.track[now], store.track[ahead]])
+        order = np.argsort(position, kind="stable")
+        position, height, track = position[order], height[order], track[order]
+        unconfirmed = ~np.isin(track, list(tracks))
+        beneath = np.zeros(released.scan.shape[0], dtype=bool)
+        for track_id in np.unique(released.track[candidate]).tolist():  # one step per wire
+            mine = candidate & (released.track == track_id)
+            own_m = np.concatenate(
+                [released.position_m[mine], store.position_m[store.track == track_id]]
+            )
+            own_z = np.concatenate([released.z_mm[mine], store.z_mm[store.track == track_id]])
+            at = np.argsort(own_m, kind="stable")
+            own_m, own_z = own_m[at], own_z[at]
+            within = (position >= own_m[0] - reach) & (position <= own_m[-1] + reach)
+            lower = (
+                within
+                & unconfirmed
+                & (height < np.interp(position, own_m, own_z) - self.config.messenger_gap_mm)
+            )
+            count = np.concatenate([[0], np.cumsum(lower)])
+            here = released.position_m[mine]
+            first = np.searchsorted(position, here - reach, side="left")
+            last = np.searchsorted(position, here + reach, side="right")
+            beneath[mine] = count[last] - count[first] >= LOWER_WIRE_POINTS
+        if released.scan.shape[0]:
+            done = position <= float(released.position_m.max())
+            done &= position >= float(released.position_m.max()) - reach
+            self._behind = (position[done], height[done], track[done])
+        return beneath
 
     def _lowest_wire(self, released: _Store, tracks: Mapping[int, _Track]) -> FloatArray:
         """Lowest height of any confirmed track at each released point's scan [mm].
@@ -883,7 +964,8 @@ class WireTracker:
         return ok
 
     def _remember(self, released: _Store, tracks: Mapping[int, _Track]) -> None:
-        """Keep each track's last released point; forget tracks that hold nothing more."""
+        """Keep each track's last released point; forget tracks that hold nothing more and
+        ended more than ``max_gap_m`` before the last point released."""
         if released.scan.shape[0]:
             ids, from_end = np.unique(released.track[::-1], return_index=True)
             last = released.scan.shape[0] - 1 - from_end  # last row of each track
@@ -905,9 +987,14 @@ class WireTracker:
                         float(released.x_mm[row]),
                         float(released.z_mm[row]),
                     )
+        # a closed track's height still counts up to max_gap_m beyond its end (_lowest_wire)
         held = set(np.unique(self._store.track).tolist())
-        for track_id in [t for t in self._closed if t not in held]:
-            del self._closed[track_id]
+        if released.scan.shape[0]:
+            self._released_m = float(released.position_m[-1])
+        reach = self.config.max_gap_m
+        for track_id, track in list(self._closed.items()):
+            if track_id not in held and track.end_m + reach < self._released_m:
+                del self._closed[track_id]
         alive = set(self._open) | set(self._closed)
         for book in (self._last_released, self._last_verified):
             for track_id in [t for t in book if t not in alive]:
