@@ -61,10 +61,12 @@ def run(
     config: TrackingConfig | None = None,
     *,
     uncertain_rows: bool = False,
+    two_view: tuple[int, ...] = (),
 ):
     """Track the stream in blocks of ``block`` scans: scan, wire, truth label and x of the
     rows out, the most points held, and which rows are ``selection_uncertain`` (any fails
-    the test unless ``uncertain_rows``)."""
+    the test unless ``uncertain_rows``). Points of the labels ``two_view`` are pushed
+    unverified."""
     s, x, z, t = stream.arrays()
     tracker = WireTracker(config)
     out: list[TrackedPoints] = []
@@ -80,6 +82,7 @@ def run(
                 x[rows],
                 z[rows],
                 {"truth": t[rows]},
+                verified=~np.isin(t[rows], two_view),
                 last_scan=last,
                 last_position_m=float(stream.position[last]),
             )
@@ -263,6 +266,32 @@ def test_a_wire_above_points_that_make_no_track_is_uncertain() -> None:
     s, _, _, t = stream.arrays()
     assert not np.any((truth == 10) & ~uncertain)  # no messenger row claims a contact wire
     assert np.count_nonzero(truth == 10) > 0.9 * np.count_nonzero(t == 10)
+
+
+def test_a_wire_above_one_that_only_two_cameras_saw_is_uncertain() -> None:
+    # the contact wire never verified by a third camera (two-view points in every scan),
+    # its messenger verified: the messenger must not come out as the contact wire
+    stream = Stream(6000, seed=11)
+    p = stream.position
+    x = zigzag(p)
+    stream.wire(0, x, np.full(p.shape, 1450.0), np.ones(p.shape, bool))
+    stream.wire(10, x, np.full(p.shape, 2650.0), np.ones(p.shape, bool))
+    _, _, truth, _, _, uncertain = run(stream, 1024, uncertain_rows=True, two_view=(0,))
+    assert np.all(uncertain[truth == 10])
+    assert np.count_nonzero(truth == 10) > 0.9 * p.shape[0]
+
+
+def test_scattered_two_view_ghosts_beneath_a_wire_leave_it_certain() -> None:
+    # ghosts of two views: single points, several in a metre, anywhere below the wire
+    stream = Stream(6000, seed=12)
+    rng = stream.rng
+    p = stream.position
+    stream.wire(0, zigzag(p), np.full(p.shape, 1900.0), np.ones(p.shape, bool))
+    s = np.sort(rng.choice(p.shape[0], 500, replace=False))  # 5 a metre: 15 times the worst seen
+    stream.points(30, s, rng.uniform(-500, 500, s.shape), rng.uniform(1300, 1650, s.shape))
+    _, wire, truth, _, _, _ = run(stream, 1024, two_view=(30,))
+    assert set(np.unique(truth).tolist()) == {0}
+    assert np.unique(wire).tolist() == [0]
 
 
 def test_a_lost_wire_keeps_its_number() -> None:

@@ -72,6 +72,10 @@ LOWER_WIRE_POINTS = 5
 as few as a track needs; a fitting below the contact wire does not exist, and noise is not
 verified by three cameras)."""
 
+LOWER_WIRE_SHARE = 0.25
+"""Fewest two-view points beneath a track, as a share of the track's own points nearby, that
+show a lower wire there (ghosts of two views are single points, a few in a metre)."""
+
 
 MIN_TRACK_POINTS = 5
 """Fewest points of a track accepted as a wire."""
@@ -361,8 +365,8 @@ class WireTracker:
         # position, x and z of the verified point released last
         self._last_released: dict[int, tuple[int, float, float]] = {}
         self._last_verified: dict[int, tuple[int, float, float, float]] = {}
-        # verified points released within max_gap_m: position, height, track
-        self._behind = (np.zeros(0), np.zeros(0), np.zeros(0, np.int64))
+        # points released within max_gap_m (position, height, track, verified): step 4
+        self._behind = _Store.empty()
         self._released_m = -np.inf  # position of the last point released
         self._next_track = 0
         self._next_wire = 0
@@ -481,18 +485,7 @@ class WireTracker:
             )
             track_of_fragment[f] = -1 if track is None else track.id
         track_id = track_of_fragment[fragment_of]
-        kept = track_id >= 0  # unverified chains that continued no track are dropped
-        self._store.append(
-            _Store(
-                scan[kept],
-                position[kept],
-                x[kept],
-                z[kept],
-                track_id[kept],
-                verified[kept],
-                {k: v[kept] for k, v in cols.items()},
-            )
-        )
+        self._store.append(_Store(scan, position, x, z, track_id, verified, cols))
         self._last_scan = max(self._last_scan, int(scan[-1]))
         self._last_m = max(self._last_m, float(position[-1]))
         self._merge_duplicates()
@@ -829,47 +822,55 @@ class WireTracker:
     ) -> NDArray[np.bool_]:
         """Whether a lower wire shows beneath each ``candidate`` released point (step 4).
 
-        Counts the verified points of unconfirmed tracks (the confirmed ``tracks`` are
-        ``_lowest_wire``'s: released before, now, or held ahead) within ``max_gap_m`` along
-        the track that lie more than
-        ``messenger_gap_mm`` below the point's own track (its height interpolated at theirs);
-        ``LOWER_WIRE_POINTS`` of them are a lower wire. Remembers the verified points
-        released now for the next call.
+        Counts, within ``max_gap_m`` along the track (released before, now, or held ahead),
+        the points of no confirmed track (those are ``_lowest_wire``'s) that lie more than
+        ``messenger_gap_mm`` below the point's own track, its height interpolated at theirs.
+        ``LOWER_WIRE_POINTS`` verified ones are a lower wire; two-view (unverified) ones
+        only when they are also at least ``LOWER_WIRE_SHARE`` of the track's own points
+        there: two views scatter ghosts here and there, a wire that only two cameras saw
+        shows in about as many scans as the wire above it. Remembers the points released
+        now for the next call.
         """
         store, reach = self._store, self.config.max_gap_m
-        ahead = store.verified
-        now = released.verified
-        behind_m, behind_z, behind_track = self._behind
-        position = np.concatenate([behind_m, released.position_m[now], store.position_m[ahead]])
-        height = np.concatenate([behind_z, released.z_mm[now], store.z_mm[ahead]])
-        track = np.concatenate([behind_track, released.track[now], store.track[ahead]])
+        parts = (self._behind, released, store)
+        position = np.concatenate([part.position_m for part in parts])
         order = np.argsort(position, kind="stable")
-        position, height, track = position[order], height[order], track[order]
+        position = position[order]
+        height = np.concatenate([part.z_mm for part in parts])[order]
+        track = np.concatenate([part.track for part in parts])[order]
+        verified = np.concatenate([part.verified for part in parts])[order]
+        ahead = np.concatenate(
+            [
+                np.zeros(self._behind.scan.shape[0] + released.scan.shape[0], bool),
+                np.ones(store.scan.shape[0], bool),
+            ]
+        )[order]
         unconfirmed = ~np.isin(track, list(tracks))
         beneath = np.zeros(released.scan.shape[0], dtype=bool)
         for track_id in np.unique(released.track[candidate]).tolist():  # one step per wire
+            own = track == track_id
             mine = candidate & (released.track == track_id)
-            own_m = np.concatenate(
-                [released.position_m[mine], store.position_m[store.track == track_id]]
+            own_height = np.interp(position, position[own], height[own])
+            lower = unconfirmed & (height < own_height - self.config.messenger_gap_mm)
+            first = np.searchsorted(position, released.position_m[mine] - reach, side="left")
+            last = np.searchsorted(position, released.position_m[mine] + reach, side="right")
+            sure = _window_count(lower & verified, first, last)
+            seen = _window_count(lower & ~verified, first, last)
+            beneath[mine] = (sure >= LOWER_WIRE_POINTS) | (
+                (seen >= LOWER_WIRE_POINTS)
+                & (seen >= LOWER_WIRE_SHARE * _window_count(own, first, last))
             )
-            own_z = np.concatenate([released.z_mm[mine], store.z_mm[store.track == track_id]])
-            at = np.argsort(own_m, kind="stable")
-            own_m, own_z = own_m[at], own_z[at]
-            within = (position >= own_m[0] - reach) & (position <= own_m[-1] + reach)
-            lower = (
-                within
-                & unconfirmed
-                & (height < np.interp(position, own_m, own_z) - self.config.messenger_gap_mm)
-            )
-            count = np.concatenate([[0], np.cumsum(lower)])
-            here = released.position_m[mine]
-            first = np.searchsorted(position, here - reach, side="left")
-            last = np.searchsorted(position, here + reach, side="right")
-            beneath[mine] = count[last] - count[first] >= LOWER_WIRE_POINTS
         if released.scan.shape[0]:
-            done = position <= float(released.position_m.max())
-            done &= position >= float(released.position_m.max()) - reach
-            self._behind = (position[done], height[done], track[done])
+            done = ~ahead & (position >= released.position_m[-1] - reach)
+            self._behind = _Store(
+                np.zeros(int(done.sum()), np.int64),
+                position[done],
+                np.zeros(int(done.sum())),
+                height[done],
+                track[done],
+                verified[done],
+                {},
+            )
         return beneath
 
     def _lowest_wire(self, released: _Store, tracks: Mapping[int, _Track]) -> FloatArray:
@@ -914,7 +915,7 @@ class WireTracker:
         config = self.config
         ok = released.verified.copy()
         store = self._store
-        for track_id in np.unique(released.track[~ok]).tolist():  # one step per track
+        for track_id in np.unique(released.track[~ok & (released.track >= 0)]).tolist():
             mine = released.track == track_id
             ahead = (store.track == track_id) & store.verified
             sure = mine & released.verified
@@ -1001,23 +1002,7 @@ class WireTracker:
                 del book[track_id]
 
 
-def _lookup(mapping: Mapping[int, int], keys: IntArray) -> IntArray:
-    """``mapping[key]`` for each key, -1 where absent (vectorised)."""
-    if not mapping or keys.shape[0] == 0:
-        return np.full(keys.shape, -1, dtype=np.int64)
-    known = np.array(sorted(mapping), dtype=np.int64)
-    values = np.array([mapping[int(k)] for k in known], dtype=np.int64)
-    position = np.clip(np.searchsorted(known, keys), 0, known.shape[0] - 1)
-    return np.where(known[position] == keys, values[position], -1)
-
-
-def _lowest_by_scan(scan: IntArray, z: FloatArray, query_scan: IntArray) -> FloatArray:
-    """Lowest ``z`` among points of each ``query_scan`` (NaN where there is none)."""
-    if scan.shape[0] == 0:
-        return np.full(query_scan.shape, np.nan)
-    unique, inverse = np.unique(scan, return_inverse=True)
-    lowest = np.full(unique.shape[0], np.inf)
-    np.minimum.at(lowest, inverse, z)
-    position = np.clip(np.searchsorted(unique, query_scan), 0, unique.shape[0] - 1)
-    found = unique[position] == query_scan
-    return np.where(found, lowest[position], np.nan)
+def _window_count(rows: NDArray[np.bool_], first: IntArray, last: IntArray) -> IntArray:
+    """How many of ``rows`` lie in each window ``first[i]:last[i]`` (cumulative sums)."""
+    total = np.concatenate([[0], np.cumsum(rows)])
+    return total[last] - total[first]
