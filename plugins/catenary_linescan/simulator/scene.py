@@ -37,12 +37,13 @@ What is generated (the figures in ``reference/wire-profiles.md``):
   from the turnout's own masts, which are not in this track's register) is straight in plan
   and crosses the main contact wire at ``turnout_angle_deg`` in plan, at the main wire's height,
   within 250 mm of the track centre and 5 m or more from the main line's masts. It comes down
-  from its anchor on the far side to running height within 500 mm of the track centre, runs
-  at running height through the crossing and rises slowly beyond it (50-100 mm at 500-800 mm
-  of separation, then out of the cameras' view toward its next support), so that it is
-  running (lift under 20 mm: the pantograph touches it) over a stretch of about 0.4-0.8 m of
-  separation around the crossing. A cross-over pipe clamped above the main wire holds the
-  two wires together at the crossing; the crossing is a wear hot spot on both wires.
+  from its anchor on the far side to running height 300-500 mm from the track centre, runs
+  level with the main wire (its droppers cut for it) through the crossing and rises slowly
+  beyond it (50-100 mm at 400-700 mm further across the track, then out of the cameras' view
+  toward its next support), so that it is running (lift under 20 mm: the pantograph touches
+  it) from where it comes down to about 80-280 mm past the crossing, always within about
+  550 mm of the track centre. A cross-over pipe clamped above the main wire holds the two
+  wires together at the crossing; the crossing is a wear hot spot on both wires.
 - **Wear**: the flat face width ``w0`` (perpendicular to the wire) varies smoothly along each
   contact wire (a base level plus random undulation), with hot spots at registration points
   (stronger in curves) and at the overlap's transfer point, 0-12 mm; wires raised out of
