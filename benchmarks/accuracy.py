@@ -136,6 +136,17 @@ CASES = [
         note="the same behind the band-pass filter",
     ),
     Case(
+        "turnout",
+        {"seed": 115, "overlap": False, "turnout_angle_deg": 6.0},
+        note="a diverging contact wire crossing the main one at 6° mid-run",
+    ),
+    Case(
+        "system-300",
+        {"seed": 116, "overlap": False},
+        {"system_height_mm": (300.0, 400.0)},
+        note="messengers 300-400 mm above their contact wires at the masts",
+    ),
+    Case(
         "blind-camera",
         {
             "seed": 111,

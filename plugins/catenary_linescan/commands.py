@@ -108,6 +108,13 @@ def calibrate(**options: Any) -> None:
     help="0: straight; > 0: a curve over the second half; default: the seed decides.",
 )
 @click.option(
+    "--turnout-angle-deg",
+    type=float,
+    default=None,
+    help="A turnout mid-run: its diverging contact wire crosses the main one at this angle "
+    "in plan (2-10; needs --no-overlap).",
+)
+@click.option(
     "--roi",
     metavar="CAMERA=OFFSET:WIDTH",
     multiple=True,

@@ -34,6 +34,7 @@ def simulate_run(
     curve_radius_m: float | None,
     overwrite: bool,
     roi: tuple[str, ...] = (),
+    turnout_angle_deg: float | None = None,
 ) -> None:
     """Simulate a recorded run ``out`` (with its truth and mast register beside it) of the rig
     at ``rig_path`` (None: the demo rig), and its calibration captures at ``captures_path``;
@@ -51,6 +52,7 @@ def simulate_run(
         "direction": direction,
         "wire_type": wire_type,
         "curve_radius_m": curve_radius_m,
+        "turnout_angle_deg": turnout_angle_deg,
     }
     try:
         regions = _regions(roi)

@@ -25,6 +25,9 @@ Keys of the settings mapping (all optional; units in the names):
 ``wire_type``              contact wire profile (``CTA120``)
 ``curve_radius_m``         none: the seed decides; 0: straight; > 0: a curve of that radius
 ``curve_direction``        +1 bends right, -1 left, 0: the seed decides
+``turnout_angle_deg``      none: no turnout; 2-10: a turnout mid-run whose diverging contact
+                           wire crosses the main one at this angle in plan (needs ``overlap``
+                           false: a section has an overlap or a turnout)
 ``encoder_scale_error``    relative (e.g. 0.003); none: drawn from the seed
 ``start_chainage_error_m`` header minus true start chainage; none: drawn from the seed
 ``roll_std_deg``, ``lateral_std_mm``, ``bounce_std_mm``: body motion (0.25, 8, 5)
@@ -85,6 +88,7 @@ class SimulationSettings:
     wire_type: str = "CTA120"
     curve_radius_m: float | None = None
     curve_direction: int = 0
+    turnout_angle_deg: float | None = None
     encoder_scale_error: float | None = None
     start_chainage_error_m: float | None = None
     roll_std_deg: float = 0.25
@@ -117,6 +121,7 @@ class SimulationSettings:
             curve_radius_m=self.curve_radius_m,
             curve_direction=self.curve_direction,
             roof_height_mm=self.rig.vehicle.roof_height_mm,
+            turnout_angle_deg=self.turnout_angle_deg,
         )
 
     def motion_params(self) -> MotionParams:
@@ -156,7 +161,12 @@ _FLOATS = {
     "sensor_rate_hz",
     "sensor_noise_mm",
 }
-_OPTIONAL_FLOATS = {"curve_radius_m", "encoder_scale_error", "start_chainage_error_m"}
+_OPTIONAL_FLOATS = {
+    "curve_radius_m",
+    "encoder_scale_error",
+    "start_chainage_error_m",
+    "turnout_angle_deg",
+}
 _INTS = {"seed", "scene_seed", "curve_direction", "subsamples", "chunk_scans"}
 _BOOLS = {"overlap", "noise", "blur"}
 _NULLABLE = _OPTIONAL_FLOATS | {"scene_seed", "sun_blind", "started_at", "rig"}
@@ -231,6 +241,15 @@ def parse_settings(settings: Mapping[str, Any]) -> SimulationSettings:
         parsed.curve_radius_m < 0 or 0 < parsed.curve_radius_m < 150
     ):
         raise _fail("curve_radius_m", parsed.curve_radius_m, "0 (straight) or at least 150 m")
+    if parsed.turnout_angle_deg is not None:
+        if not 2.0 <= parsed.turnout_angle_deg <= 10.0:
+            raise _fail("turnout_angle_deg", parsed.turnout_angle_deg, "2-10 degrees or none")
+        if parsed.overlap:
+            raise _fail(
+                "turnout_angle_deg",
+                parsed.turnout_angle_deg,
+                "overlap false with it (a section has an overlap or a turnout)",
+            )
     if parsed.sun_blind is not None:
         rig.camera(parsed.sun_blind)  # UserError naming the rig's cameras
     parsed.motion_params().check()

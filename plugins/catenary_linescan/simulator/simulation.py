@@ -47,6 +47,8 @@ _FITTING_MATERIAL = {
     "steady_arm": "arm",
     "registration_clamp": "clamp",
     "registration_tube": "tube",
+    "crossing_pipe": "tube",
+    "crossing_clamp": "clamp",
 }
 RUNNING_LIFT_MM = 20.0
 """A contact wire is "running" (in contact with the pantograph) where it is raised less than

@@ -16,7 +16,10 @@ absent or a value does not apply; every per-scan dataset chunked along scans):
                                                 ``start_chainage_error_m``,
                                                 ``encoder_scale_error``, ``scan_rate_hz``,
                                                 ``curve_radius_m`` (0: straight),
-                                                ``curve_start_m``, ``curve_end_m``
+                                                ``curve_start_m``, ``curve_end_m``,
+                                                ``turnout_angle_deg`` (0: no turnout),
+                                                ``turnout_crossing_m`` (NaN: none), where
+                                                the contact wires cross in plan
 ``/scans/distance_m``                           true distance since the first scan ``[N]``
 ``/scans/chainage_m``                           true chainage ``[N]``
 ``/scans/time_s``, ``/scans/position_m``        as in the run (position: the encoder's)
@@ -28,6 +31,8 @@ absent or a value does not apply; every per-scan dataset chunked along scans):
 ``/scans/sun_glare``                            sun glare strength 0-1 on the blinded camera
 ``/wires/id``                                   int ``[M]``: stable wire ids (the column index)
 ``/wires/name``                                 str ``[M]``: ``CW-A``, ``MW-A``, ``CW-B`` ...
+                                                (``CW-T``, ``MW-T``: a turnout's diverging
+                                                contact wire and its messenger)
 ``/wires/contact``                              bool ``[M]``: contact wire (else messenger)
 ``/wires/partner``                              int ``[M]``: a contact wire's messenger and back
 ``/wires/present``                              bool ``[N, M]``: the wire exists at the scan
@@ -182,6 +187,8 @@ class TruthWriter:
             "curve_radius_m": radius,
             "curve_start_m": scene.curve_start_m if math.isfinite(scene.curve_start_m) else np.nan,
             "curve_end_m": scene.curve_end_m if math.isfinite(scene.curve_end_m) else np.nan,
+            "turnout_angle_deg": scene.turnout.angle_deg if scene.turnout else 0.0,
+            "turnout_crossing_m": scene.turnout.crossing_m if scene.turnout else np.nan,
         }
         for key, value in attrs.items():
             f.attrs[key] = value
