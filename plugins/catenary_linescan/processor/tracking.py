@@ -143,7 +143,7 @@ class TrackingConfig:
         See ``reidentify_m`` [mm].
     """
 
-    link_mm: float = 3.0
+    link_mm: float = 5.0
     x_mm_per_m: float = 150.0
     z_mm_per_m: float = 40.0
     gate_mm: float = 20.0
