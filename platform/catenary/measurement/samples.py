@@ -85,7 +85,7 @@ SAMPLES_SCHEMA = pa.schema(
 ADDED_COLUMNS: dict[str, bool] = {"selection_uncertain": False}
 """Columns added after version 1, and the value a file without them means in every row."""
 
-TRUST_COLUMNS = ["vehicle_fault", "selection_uncertain"]
+TRUST_COLUMNS = ("vehicle_fault", "selection_uncertain")
 """The columns that say whether a sample counts (``trusted``)."""
 
 ROW_GROUP_ROWS = 16_384
