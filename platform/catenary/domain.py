@@ -123,7 +123,10 @@ class WireObservations:
     in the roof frame [mm], ``z`` the contact point (the bottom of the worn face).
     ``wear_width_mm`` is the worn face's width in the scanning plane, before the stagger-angle
     correction; ``cameras`` how many cameras confirmed the point; ``reprojection_rms_px`` the
-    triangulation's residual.
+    triangulation's residual. ``selection_uncertain`` is true where the processor could not
+    decide that the point is the contact wire (it may be a messenger, a dropper or an arm):
+    such rows are stored, flagged, and left out of span figures and alerts; all false when not
+    given.
     """
 
     scan: IntArray
@@ -133,6 +136,17 @@ class WireObservations:
     wear_width_mm: FloatArray
     cameras: IntArray
     reprojection_rms_px: FloatArray
+    selection_uncertain: BoolArray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    def __post_init__(self) -> None:
+        flag = np.asarray(self.selection_uncertain, dtype=bool)
+        if flag.shape == (0,):  # not given: every row is the contact wire
+            flag = np.zeros(self.scan.shape, dtype=bool)
+        if flag.shape != self.scan.shape:
+            raise ValueError(
+                f"selection_uncertain {flag.shape} does not match the {self.scan.shape} rows"
+            )
+        object.__setattr__(self, "selection_uncertain", flag)
 
     @property
     def rows(self) -> int:

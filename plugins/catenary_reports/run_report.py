@@ -26,7 +26,13 @@ import numpy as np
 import pyarrow as pa
 
 from catenary.limits import LEVELS, LimitPolicy, Threshold, thresholds
-from catenary.measurement.samples import export_table, read_sample_batches, samples_file
+from catenary.measurement.samples import (
+    TRUST_COLUMNS,
+    export_table,
+    read_sample_batches,
+    samples_file,
+    trusted,
+)
 from catenary.measurement.spans import SPAN_COLUMNS, SPAN_SCHEMA
 from catenary.plugins import PluginRegistry, ReportRequest
 from catenary.storage.database import open_database, session_scope
@@ -133,8 +139,16 @@ def _facts(run: Run, spans: Sequence[SpanMeasurement], extent: _Extent) -> list[
     elif run.chainage_aligned is not None:
         chainage += "; start chainage + encoder distance (not aligned to a register)"
     samples = f"{extent.rows} in {extent.path.name}"
-    if extent.rows > extent.samples:
-        samples += f" ({extent.rows - extent.samples} with a vehicle sensor fault, left out)"
+    left_out = [
+        f"{count} {what}"
+        for count, what in (
+            (extent.faulty, "with a vehicle sensor fault"),
+            (extent.uncertain, "not surely the contact wire (selection uncertain)"),
+        )
+        if count
+    ]
+    if left_out:
+        samples += f" ({', '.join(left_out)}: left out)"
     return [
         ("Run", f"{run.id} ({run.status})"),
         ("Line", line),
@@ -159,26 +173,31 @@ def _facts(run: Run, spans: Sequence[SpanMeasurement], extent: _Extent) -> list[
 
 @dataclass(frozen=True)
 class _Extent:
-    """The chainage range of a run's usable samples (no vehicle sensor fault), how many there
-    are, and how many rows the file holds."""
+    """The chainage range of a run's usable samples (``trusted``: no vehicle sensor fault,
+    surely the contact wire), how many there are, how many rows the file holds, and how many
+    of them have a vehicle sensor fault and how many are ``selection_uncertain``."""
 
     path: Path
     low_m: float
     high_m: float
     samples: int
     rows: int
+    faulty: int
+    uncertain: int
 
 
 def _extent(path: Path) -> _Extent:
-    low, high, usable, rows = math.inf, -math.inf, 0, 0
-    for batch in read_sample_batches(path, ["chainage_m", "vehicle_fault"]):
-        c = batch["chainage_m"][~batch["vehicle_fault"]]
+    low, high, usable, rows, faulty, uncertain = math.inf, -math.inf, 0, 0, 0, 0
+    for batch in read_sample_batches(path, ["chainage_m", *TRUST_COLUMNS]):
+        c = batch["chainage_m"][trusted(batch)]
         c = c[np.isfinite(c)]
         rows += int(batch["vehicle_fault"].shape[0])
+        faulty += int(np.count_nonzero(batch["vehicle_fault"]))
+        uncertain += int(np.count_nonzero(batch["selection_uncertain"]))
         usable += int(c.shape[0])
         if c.shape[0]:
             low, high = min(low, float(c.min())), max(high, float(c.max()))
-    return _Extent(path, low, high, usable, rows)
+    return _Extent(path, low, high, usable, rows, faulty, uncertain)
 
 
 def _grid(extent: _Extent, segment_m: float) -> tuple[EnvelopeGrid, int]:
@@ -188,9 +207,9 @@ def _grid(extent: _Extent, segment_m: float) -> tuple[EnvelopeGrid, int]:
     bin_m = span_m / (figures * PLOT_COLUMNS)
     start = extent.low_m if extent.high_m > extent.low_m else extent.low_m - 0.5
     grid = EnvelopeGrid(start, bin_m, figures * PLOT_COLUMNS, [q for q, _ in PANELS])
-    columns = ["chainage_m", "wire", "vehicle_fault", *grid.quantities]
+    columns = ["chainage_m", "wire", *TRUST_COLUMNS, *grid.quantities]
     for batch in read_sample_batches(extent.path, columns):
-        good = ~batch["vehicle_fault"]
+        good = trusted(batch)
         grid.add(
             batch["chainage_m"][good],
             batch["wire"][good],

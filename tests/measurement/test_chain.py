@@ -3,6 +3,8 @@ the along-track screen of the widths."""
 
 from __future__ import annotations
 
+from dataclasses import fields
+
 import numpy as np
 import pytest
 
@@ -201,3 +203,79 @@ def test_a_wire_that_ended_is_given_out_before_the_run_ends():
     rows = TrackSamples.concatenate(given)
     assert rows.rows == np.count_nonzero(scans["position_m"] < 100.0)
     assert chain.finish(observations(np.zeros(0, np.int64), scans, 8.0)).rows == 0
+
+
+def messenger(scan: np.ndarray, scans: dict[str, np.ndarray]) -> WireObservations:
+    """Rows of the same wire number that the processor could not decide are the contact wire:
+    a messenger 1,200 mm above it, 300 mm aside, at another stagger gradient, 3 mm wide."""
+    from catenary.measurement.vehicle import track_to_roof
+
+    position = scans["position_m"][scan]
+    x, z = track_to_roof(
+        100.0 - 40.0 * position,
+        np.full(scan.shape, 6500.0),
+        scans["left_mm"][scan],
+        scans["right_mm"][scan],
+        scans["lateral_mm"][scan],
+        GEOMETRY,
+    )
+    m = scan.shape[0]
+    return WireObservations(
+        scan=scan.astype(np.int64),
+        wire=np.zeros(m, np.int64),
+        x_roof_mm=x,
+        z_roof_mm=z,
+        wear_width_mm=np.full(m, 3.0),
+        cameras=np.full(m, 3, np.int64),
+        reprojection_rms_px=np.zeros(m),
+        selection_uncertain=np.ones(m, dtype=bool),
+    )
+
+
+def together(a: WireObservations, b: WireObservations) -> WireObservations:
+    return WireObservations(
+        **{f.name: np.concatenate([getattr(a, f.name), getattr(b, f.name)]) for f in fields(a)}
+    )
+
+
+def test_uncertain_rows_keep_their_flag_and_never_touch_the_wires_angle_or_screen():
+    """A messenger's rows interleaved with the contact wire's under one wire number: the
+    contact wire's rows come out exactly as without them; the messenger's are flagged, with
+    their own position and a width corrected by their own stagger angle."""
+    n, lag = 2000, 50
+    width = fitting_widths(n)
+    scans = run_scans(n)
+    chain = MeasurementChain(GEOMETRY)
+    out = []
+    released = 0
+    for b in blocks(scans, 128):
+        upto = max(b.first_scan + b.scans - lag, 0)
+        scan = np.arange(released, upto)
+        unsure = scan[(scan >= 900) & (scan < 1100)]
+        out.append(
+            chain.push(b, together(observations(scan, scans, width), messenger(unsure, scans)))
+        )
+        released = max(released, upto)
+    scan = np.arange(released, n)
+    out.append(chain.finish(observations(scan, scans, width)))
+    rows = TrackSamples.concatenate(out)
+    plain = run_chain(n, block=128, lag=lag, width_mm=width)
+    certain = rows.take(~rows.selection_uncertain)
+    assert not plain.selection_uncertain.any()
+    for name in ("scan", "stagger_mm", "height_mm", "wear_width_mm", "vehicle_fault"):
+        np.testing.assert_allclose(getattr(certain, name), getattr(plain, name), atol=1e-9)
+    unsure = rows.take(rows.selection_uncertain)
+    np.testing.assert_array_equal(unsure.scan, np.arange(900, 1100))
+    np.testing.assert_allclose(unsure.height_mm, 6500.0, atol=1e-6)
+    np.testing.assert_allclose(unsure.wear_width_mm, 3.0 * np.cos(np.arctan(0.04)), atol=1e-6)
+
+
+def test_observations_without_the_flag_are_all_the_contact_wire():
+    scans = run_scans(10)
+    obs = observations(np.arange(10), scans, 8.0)
+    np.testing.assert_array_equal(obs.selection_uncertain, np.zeros(10, dtype=bool))
+    with pytest.raises(ValueError, match="selection_uncertain"):
+        WireObservations(
+            **{f.name: getattr(obs, f.name) for f in fields(obs)}
+            | {"selection_uncertain": np.zeros(3, dtype=bool)}
+        )

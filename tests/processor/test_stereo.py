@@ -34,9 +34,11 @@ from catenary_linescan.processor.matching import Matches
 from catenary_linescan.processor.stereo import (
     LineScanProcessor,
     ProcessorConfig,
+    _observations,
     contact_from_axis,
     create,
 )
+from catenary_linescan.processor.tracking import TrackedPoints
 from catenary_linescan.rig import Rig, write_rig
 from catenary_linescan.simulator import DEMO_RIG_PATH, Simulation, load_rig, parse_settings
 from catenary_linescan.simulator.captures import write_captures
@@ -501,3 +503,28 @@ def test_a_silhouette_middle_is_lowered_by_its_chord_sagitta() -> None:
         [out.x_mm[4], 1000.0 - out.z_mm[4]], sagitta * np.array([np.sin(0.01), np.cos(0.01)])
     )
     assert (out.x_mm[5], out.z_mm[5]) == (0.0, 1000.0)
+
+
+@pytest.mark.parametrize("flag", [None, [False, True, True]])
+def test_the_trackers_selection_uncertain_column_reaches_the_observations(flag) -> None:
+    """The tracker marks rows it cannot decide are the contact wire with a column of that
+    name; a tracker that gives none leaves every row certain."""
+    columns = {
+        "wear_width_mm": np.array([5.0, 6.0, 7.0]),
+        "cameras": np.array([3, 4, 3]),
+        "reprojection_rms_px": np.zeros(3),
+    }
+    if flag is not None:
+        columns["selection_uncertain"] = np.array(flag)
+    points = TrackedPoints(
+        scan=np.array([4, 5, 5]),
+        wire=np.array([0, 0, 1]),
+        position_m=np.array([0.1, 0.2, 0.2]),
+        x_mm=np.array([-10.0, -9.0, 300.0]),
+        z_mm=np.array([1500.0, 1500.0, 2700.0]),
+        columns=columns,
+    )
+    obs = _observations(points)
+    expected = [False, False, False] if flag is None else flag
+    np.testing.assert_array_equal(obs.selection_uncertain, expected)
+    np.testing.assert_array_equal(obs.wear_width_mm, [5.0, 6.0, 7.0])

@@ -19,6 +19,11 @@ gives :class:`TrackSamples`:
    (NaN); the row stays. Rows are held ``SCREEN_NOISE_HALF_WINDOW_M`` longer (how far the
    screen looks), so that it sees the stagger-corrected widths of both sides.
 
+Rows the processor flags ``selection_uncertain`` (perhaps a messenger, a dropper or an arm,
+not the contact wire) are carried through with their flag, but steps 2 and 3 take them apart
+from the wire's other rows: their stagger never enters the wire's angle fit, nor their width
+its screen, and theirs come from the uncertain rows of the same wire number only.
+
 Memory is bounded by ``history_m`` of scans and ``2 window_m`` (and the screen's reach) of
 rows per wire, whatever the run's length. Residual thickness and chainage come later, once
 the run's chainage is aligned (they need the mast register's wire types and the whole run's
@@ -55,7 +60,8 @@ class TrackSamples:
 
     ``wear_width_mm`` is across the wire (stagger-angle corrected); NaN where the cameras
     did not agree on the face, the angle could not be fitted or the screen left it out, 0.0
-    where no face was seen (and its neighbours saw none either).
+    where no face was seen (and its neighbours saw none either). ``selection_uncertain``: the
+    processor could not decide that the row is the contact wire.
     """
 
     scan: IntArray
@@ -66,6 +72,7 @@ class TrackSamples:
     wear_width_mm: FloatArray
     cameras: IntArray
     vehicle_fault: BoolArray
+    selection_uncertain: BoolArray
 
     @property
     def rows(self) -> int:
@@ -96,7 +103,12 @@ _DTYPES = {
     "wear_width_mm": np.float64,
     "cameras": np.int64,
     "vehicle_fault": np.bool_,
+    "selection_uncertain": np.bool_,
 }
+
+_Stream = tuple[int, bool]
+"""Rows processed along the track together: a wire number, and whether the selection was
+uncertain."""
 
 
 class MeasurementChain:
@@ -135,8 +147,8 @@ class MeasurementChain:
         self._position = np.zeros(0)
         self._sensors = np.zeros((3, 0))  # left, right, lateral [mm]
         self._fault = np.zeros(0, dtype=bool)
-        self._pending: dict[int, TrackSamples] = {}  # per wire: rows not given out yet
-        self._context: dict[int, TrackSamples] = {}  # per wire: the last rows given out
+        self._pending: dict[_Stream, TrackSamples] = {}  # per stream: rows not given out yet
+        self._context: dict[_Stream, TrackSamples] = {}  # per stream: the last rows given out
 
     def push(self, block: ScanBlock, observations: WireObservations) -> TrackSamples:
         """Add one block's scans and the observations released with it."""
@@ -191,16 +203,20 @@ class MeasurementChain:
             wear_width_mm=np.asarray(observations.wear_width_mm, dtype=np.float64),
             cameras=observations.cameras.astype(np.int64),
             vehicle_fault=self._fault[index],
+            selection_uncertain=observations.selection_uncertain,
         )
-        for wire in np.unique(rows.wire):  # a loop per wire, not per row
-            mine = rows.take(rows.wire == wire)
-            held = self._pending.get(int(wire))
-            self._pending[int(wire)] = mine if held is None else held.concatenate([held, mine])
+        for uncertain in (False, True):
+            flagged = rows.take(rows.selection_uncertain == uncertain)
+            for wire in np.unique(flagged.wire):  # a loop per wire, not per row
+                mine = flagged.take(flagged.wire == wire)
+                stream = (int(wire), uncertain)
+                held = self._pending.get(stream)
+                self._pending[stream] = mine if held is None else held.concatenate([held, mine])
 
     def _release(self, *, final: bool) -> TrackSamples:
         out = []
-        for wire in list(self._pending):
-            pending = self._pending[wire]
+        for stream in list(self._pending):
+            pending = self._pending[stream]
             if pending.rows == 0:
                 continue
             frontier = float(np.max(pending.position_m))
@@ -213,7 +229,7 @@ class MeasurementChain:
             )
             if not ready.any():
                 continue
-            context = self._context.get(wire, TrackSamples.empty())
+            context = self._context.get(stream, TrackSamples.empty())
             both = TrackSamples.concatenate([context, pending])
             theta = stagger_angle_rad(both.position_m, both.stagger_mm, self.window_m)
             # the context's widths are corrected already (and kept unscreened)
@@ -226,12 +242,12 @@ class MeasurementChain:
             screened = screened_wear_width_mm(both.position_m, corrected)
             done = replace(pending.take(ready), wear_width_mm=corrected[context.rows :][ready])
             out.append(replace(done, wear_width_mm=screened[context.rows :][ready]))
-            self._pending[wire] = pending.take(~ready)
+            self._pending[stream] = pending.take(~ready)
             given = TrackSamples.concatenate([context, done])
             last = float(np.max(done.position_m))
             # as far back as the angle's window and the screen's noise differences reach
             reach = max(self.window_m, 2.0 * SCREEN_NOISE_HALF_WINDOW_M)
-            self._context[wire] = given.take(given.position_m >= last - reach)
+            self._context[stream] = given.take(given.position_m >= last - reach)
         released = TrackSamples.concatenate(out)
         order = np.lexsort((released.wire, released.scan))
         return released.take(order)

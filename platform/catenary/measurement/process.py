@@ -20,9 +20,12 @@
 4. **Finish** (pass 2): each sample's chainage, span (the register's masts, or the turning
    points without one), wire type and residual thickness, written to the run's samples file
    (:mod:`catenary.measurement.samples`), and the span statistics
-   (:mod:`catenary.measurement.spans`). A run in which no wire was measured at all (a
-   vehicle that did not move, cameras that saw nothing) is refused: nothing is stored. One
-   that measured no span (too little track covered) is stored and the command warns.
+   (:mod:`catenary.measurement.spans`) of the samples that have neither a vehicle sensor
+   fault nor ``selection_uncertain`` (the processor could not decide that the point is the
+   contact wire; nor do such samples find turning points in pass 1). A run in which no wire
+   was measured at all (a vehicle that did not move, cameras that saw nothing) is refused:
+   nothing is stored. One that measured no span (too little track covered) is stored and
+   the command warns.
 5. **Store** in one transaction: the line, track and masts, the vehicle and rig calibration
    (versioned), the run and its span measurements. The samples file gets the run's name
    (``run-{id}-{token}.parquet``) inside that transaction, as a second name beside the
@@ -122,6 +125,7 @@ _MEASURED_SCHEMA = pa.schema(
         ("wear_width_mm", pa.float64()),
         ("cameras", pa.int16()),
         ("vehicle_fault", pa.bool_()),
+        ("selection_uncertain", pa.bool_()),
     ]
 )
 """Pass 1's intermediate file: the measurement chain's rows, before chainage and thickness."""
@@ -170,6 +174,8 @@ class ProcessResult:
     samples: int = 0
     outside_spans: int = 0
     faulty: int = 0
+    uncertain: int = 0
+    """Samples the processor could not decide are the contact wire (``selection_uncertain``)."""
     minimum: SpanMeasurement | None = None
     samples_path: Path | None = None
     sensors: str = ""
@@ -219,6 +225,11 @@ class ProcessResult:
             notes.append(f"{self.outside_spans} outside the register's spans")
         if self.faulty:
             notes.append(f"{self.faulty} with a vehicle sensor fault (not in the span figures)")
+        if self.uncertain:
+            notes.append(
+                f"{self.uncertain} not surely the contact wire (selection_uncertain; not in the "
+                "span figures)"
+            )
         extra = f" ({'; '.join(notes)})" if notes else ""
         lines.append(f"samples    {self.samples} in {self.samples_path}{extra}")
         if self.sensors:
@@ -400,7 +411,7 @@ def _measure(
 
     def keep(rows: TrackSamples) -> None:
         writer.write({f.name: getattr(rows, f.name) for f in _MEASURED_SCHEMA})
-        good = ~rows.vehicle_fault
+        good = ~rows.vehicle_fault & ~rows.selection_uncertain
         finder.push(rows.wire[good], rows.position_m[good], rows.stagger_mm[good])
 
     def observations(call: Callable[..., object], *args: object) -> WireObservations:
@@ -450,11 +461,12 @@ def _finish(
     layout: SpanLayout,
     wire_types: dict[str, WireType],
     run_wire_type: str | None,
-) -> tuple[SpanAccumulator, int, int]:
+) -> tuple[SpanAccumulator, int, int, int]:
     """Pass 2: chainage, span, wire type and residual thickness of every sample; returns
-    the span statistics, the samples outside every span and the faulty ones."""
+    the span statistics, the samples outside every span, the faulty ones and the uncertain
+    ones (``selection_uncertain``). Faulty and uncertain samples are not in the statistics."""
     spans = SpanAccumulator()
-    outside = faulty = 0
+    outside = faulty = uncertain = 0
     names = sorted({n for n in (*layout.wire_type, run_wire_type) if n is not None})
     for batch in read_sample_batches(measured):
         chainage = alignment.chainage_m(batch["position_m"])
@@ -471,6 +483,7 @@ def _finish(
             wire = wire_types[name]
             thickness[rows] = wire.residual_thickness_mm(np.clip(width[rows], 0.0, wire.width_mm))
         fault = batch["vehicle_fault"]
+        unsure = batch["selection_uncertain"]
         number = np.where(index >= 0, layout.number[index], -1)
         writer.write(
             {
@@ -480,9 +493,11 @@ def _finish(
                 "span": number,
             }
         )
-        usable = ~fault & np.isfinite(batch["height_mm"]) & np.isfinite(batch["stagger_mm"])
+        usable = ~fault & ~unsure
+        usable &= np.isfinite(batch["height_mm"]) & np.isfinite(batch["stagger_mm"])
         outside += int(np.count_nonzero(index < 0))
         faulty += int(np.count_nonzero(fault))
+        uncertain += int(np.count_nonzero(unsure))
         use = usable & (index >= 0)
         spans.add(
             index[use],
@@ -492,7 +507,7 @@ def _finish(
             batch["height_mm"][use],
             batch["stagger_mm"][use],
         )
-    return spans, outside, faulty
+    return spans, outside, faulty, uncertain
 
 
 def _span_rows(
@@ -717,7 +732,7 @@ def _process_open_run(
                 )
             alignment, layout, ends = _align(inputs, finder, last_position)
             with SampleWriter(partial) as writer:
-                spans, outside, faulty = _finish(
+                spans, outside, faulty, uncertain = _finish(
                     measured, writer, alignment, layout, inputs.wire_types, request.wire_type
                 )
                 samples = writer.rows
@@ -820,6 +835,7 @@ def _process_open_run(
         samples=samples,
         outside_spans=outside,
         faulty=faulty,
+        uncertain=uncertain,
         minimum=minimum,
         samples_path=kept,
         sensors=smoother.describe(),

@@ -1,20 +1,23 @@
-"""A run's full-resolution wear samples: one Parquet file per run (``catenary-samples`` v1).
+"""A run's full-resolution wear samples: one Parquet file per run (``catenary-samples`` v2).
 
-Columns: the ``samples`` export columns of FORMATS.md, in its order, then the project's own
-(README, "File formats"):
+Columns: the ``samples`` export columns of FORMATS.md, in its order (``selection_uncertain``,
+bool: the processor could not decide that the point is the contact wire; such samples are
+left out of the span figures, and so of the alerts), then the project's own (README, "File
+formats"):
 
 - ``span`` (int32): the span's number as stored in the database, -1 outside every span;
 - ``vehicle_fault`` (bool): a displacement sensor sample of the scan was faulty or missing,
   so height and stagger are not trusted (such samples are left out of the span statistics).
 
-The file's key-value metadata holds ``format = catenary-samples``, ``format_version = 1``.
-Rows are written in blocks as the run is processed (each block sorted by scan and wire) and
-read back in row groups, so neither side holds a whole run in memory.
+The file's key-value metadata holds ``format = catenary-samples``, ``format_version = 2``.
+Version 1 had no ``selection_uncertain``: its files read as if the column were all false
+(``ADDED_COLUMNS``). Rows are written in blocks as the run is processed (each block sorted by
+scan and wire) and read back in row groups, so neither side holds a whole run in memory.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Any
@@ -24,6 +27,7 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
+from catenary.arrays import BoolArray
 from catenary.config import Settings
 from catenary.errors import FormatError, UserError
 from catenary.measurement.compare import RunProfile
@@ -31,17 +35,20 @@ from catenary.measurement.spreadsheet import for_people
 from catenary.storage.models import Run
 
 __all__ = [
+    "ADDED_COLUMNS",
     "EXPORT_COLUMNS",
     "SAMPLES_SCHEMA",
+    "TRUST_COLUMNS",
     "SampleWriter",
     "export_table",
     "read_sample_batches",
     "run_profile",
     "samples_file",
+    "trusted",
 ]
 
 FORMAT = "catenary-samples"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 
 EXPORT_COLUMNS = (
     "scan",
@@ -52,6 +59,7 @@ EXPORT_COLUMNS = (
     "stagger_mm",
     "wear_width_mm",
     "residual_thickness_mm",
+    "selection_uncertain",
     "cameras",
 )
 """The ``samples`` export's columns (FORMATS.md), in order."""
@@ -66,12 +74,19 @@ SAMPLES_SCHEMA = pa.schema(
         ("stagger_mm", pa.float64()),
         ("wear_width_mm", pa.float64()),
         ("residual_thickness_mm", pa.float64()),
+        ("selection_uncertain", pa.bool_()),
         ("cameras", pa.int16()),
         ("span", pa.int32()),
         ("vehicle_fault", pa.bool_()),
     ],
     metadata={"format": FORMAT, "format_version": str(FORMAT_VERSION)},
 )
+
+ADDED_COLUMNS: dict[str, bool] = {"selection_uncertain": False}
+"""Columns added after version 1, and the value a file without them means in every row."""
+
+TRUST_COLUMNS = ("vehicle_fault", "selection_uncertain")
+"""The columns that say whether a sample counts (``trusted``)."""
 
 ROW_GROUP_ROWS = 16_384
 
@@ -152,17 +167,38 @@ def _open(path: Path) -> pq.ParquetFile:
         raise FormatError(path, f"not a readable Parquet file ({exc})") from None
 
 
+def _columns(
+    path: Path, handle: pq.ParquetFile, wanted: Iterable[str]
+) -> tuple[list[str], list[str]]:
+    """The ``wanted`` columns the file holds, and those it lacks from ``ADDED_COLUMNS`` (an
+    older version's file); a ``FormatError`` for any other it lacks."""
+    names = handle.schema_arrow.names
+    missing = [c for c in wanted if c not in names and c not in ADDED_COLUMNS]
+    if missing:
+        raise FormatError(path, f"no column {missing[0]!r}")
+    return [c for c in wanted if c in names], [c for c in wanted if c not in names]
+
+
 def read_sample_batches(
     path: Path, columns: list[str] | None = None
 ) -> Iterator[dict[str, np.ndarray[Any, Any]]]:
-    """The samples of a file, row group by row group, as NumPy columns."""
+    """The samples of a file (``columns``, default all, with those of ``ADDED_COLUMNS`` an
+    older file lacks filled in), row group by row group, as NumPy columns."""
     handle = _open(path)
-    missing = [c for c in columns or [] if c not in handle.schema_arrow.names]
-    if missing:
-        raise FormatError(path, f"no column {missing[0]!r}")
+    wanted = columns if columns is not None else [*handle.schema_arrow.names, *ADDED_COLUMNS]
+    held, added = _columns(path, handle, list(dict.fromkeys(wanted)))
     for group in range(handle.num_row_groups):
-        table = handle.read_row_group(group, columns=columns)
-        yield {name: table.column(name).to_numpy() for name in table.column_names}
+        table = handle.read_row_group(group, columns=held)
+        batch = {name: table.column(name).to_numpy() for name in held}
+        for name in added:
+            batch[name] = np.full(table.num_rows, ADDED_COLUMNS[name])
+        yield batch
+
+
+def trusted(batch: Mapping[str, np.ndarray[Any, Any]]) -> BoolArray:
+    """The samples of a batch (read with ``TRUST_COLUMNS``) that count: no vehicle sensor
+    fault, and surely the contact wire (not ``selection_uncertain``), ``(m,)``."""
+    return np.asarray(~batch["vehicle_fault"] & ~batch["selection_uncertain"], dtype=bool)
 
 
 def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -> int:
@@ -200,19 +236,28 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
 
 
 def sample_tables(path: Path, columns: tuple[str, ...] = EXPORT_COLUMNS) -> Iterator[pa.Table]:
-    """The samples file's row groups as tables of ``columns``."""
+    """The samples file's row groups as tables of ``columns`` (those of ``ADDED_COLUMNS`` an
+    older file lacks filled in), in that order."""
     handle = _open(path)
-    missing = [c for c in columns if c not in handle.schema_arrow.names]
-    if missing:
-        raise FormatError(path, f"no column {missing[0]!r}")
+    held, added = _columns(path, handle, columns)
+    schema = export_schema(path, columns)
     for group in range(handle.num_row_groups):
-        yield handle.read_row_group(group, columns=list(columns))
+        table = handle.read_row_group(group, columns=held)
+        filled = {
+            name: pa.array(np.full(table.num_rows, ADDED_COLUMNS[name]), schema.field(name).type)
+            for name in added
+        }
+        yield pa.table(
+            {c: filled[c] if c in filled else table.column(c) for c in columns}, schema=schema
+        )
 
 
 def export_schema(path: Path, columns: tuple[str, ...] = EXPORT_COLUMNS) -> pa.Schema:
-    """The schema of ``columns`` of a samples file."""
+    """The schema of ``columns`` of a samples file (an older file's as the current one's)."""
     schema = _open(path).schema_arrow
-    return pa.schema([schema.field(c) for c in columns])
+    return pa.schema(
+        [schema.field(c) if c in schema.names else SAMPLES_SCHEMA.field(c) for c in columns]
+    )
 
 
 def samples_file(settings: Settings, run: Run) -> Path:
@@ -225,14 +270,14 @@ def samples_file(settings: Settings, run: Run) -> Path:
 
 
 def run_profile(settings: Settings, run: Run) -> RunProfile:
-    """The run's samples for ``compare_profiles``: those without a vehicle sensor fault, the
+    """The run's samples for ``compare_profiles``: those that count (``trusted``), the
     stagger in the line frame (positive to the right looking toward increasing chainage)."""
-    columns = ["chainage_m", "wire", "stagger_mm", "residual_thickness_mm", "vehicle_fault"]
+    columns = ["chainage_m", "wire", "stagger_mm", "residual_thickness_mm", *TRUST_COLUMNS]
     parts = list(read_sample_batches(samples_file(settings, run), columns))
     values = {c: np.concatenate([p[c] for p in parts]) for c in columns} if parts else None
     if values is None:
         raise UserError(f"run {run.id} has no samples")
-    good = ~values["vehicle_fault"]
+    good = trusted(values)
     sign = 1.0 if run.direction == "increasing" else -1.0
     return RunProfile(
         chainage_m=values["chainage_m"][good],

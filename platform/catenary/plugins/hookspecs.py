@@ -102,7 +102,8 @@ def catenary_processors() -> Iterable[Processor]:
 
     Return ``Processor`` objects; ``Processor.create(rig_path, settings)`` is called once per
     run and returns a ``BlockProcessor``, whose ``process(block)`` and ``finish()`` return
-    ``WireObservations`` in the roof frame::
+    ``WireObservations`` in the roof frame (a row the method cannot decide is the contact
+    wire carries ``selection_uncertain``: stored, but left out of span figures and alerts)::
 
         @hookimpl
         def catenary_processors():

@@ -161,7 +161,10 @@ def empty_observations() -> WireObservations:
 
 
 def _observations(points: TrackedPoints) -> WireObservations:
+    """The tracker's released points as observations; ``selection_uncertain`` from the
+    tracker's column of that name where it gives one, else all false."""
     columns = points.columns
+    uncertain = columns.get("selection_uncertain")
     return WireObservations(
         scan=points.scan,
         wire=points.wire,
@@ -170,6 +173,9 @@ def _observations(points: TrackedPoints) -> WireObservations:
         wear_width_mm=np.asarray(columns["wear_width_mm"], dtype=np.float64),
         cameras=np.asarray(columns["cameras"], dtype=np.int64),
         reprojection_rms_px=np.asarray(columns["reprojection_rms_px"], dtype=np.float64),
+        selection_uncertain=np.zeros(points.rows, dtype=bool)
+        if uncertain is None
+        else np.asarray(uncertain, dtype=bool),
     )
 
 
