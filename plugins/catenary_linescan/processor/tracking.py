@@ -111,11 +111,10 @@ class TrackingConfig:
     ----------
     link_mm : float
         Largest jump of a wire between consecutive scans at standstill, in ``x`` and in ``z``
-        [mm]: the noise of the points (tenths of a millimetre on the demo rig, a millimetre
-        or two from coarser optics or a harder scene) and the body's motion in a
-        millisecond. A clamp or a fitting that takes the wire's place in a scan moves the
-        point by more (a dropper clamp's face 6 mm up) and breaks the chain; a jump of a
-        few millimetres is bridged by the join (``gate_mm``) anyway.
+        [mm]: the noise of the points (tenths of a millimetre) and the body's motion in a
+        millisecond, with room. A clamp or a fitting that takes the wire's place in a scan
+        moves the point by more (a dropper clamp's face 6 mm up) and breaks the chain; a
+        wire whose points scatter by more is joined across the breaks (``gate_mm``).
     x_mm_per_m, z_mm_per_m : float
         Extra jump per metre travelled [mm/m]: a wire's angle in plan (150 mm/m is 8.5°, a
         turnout's) and its rise (40 mm/m: a wire rising to its anchor).
@@ -145,7 +144,7 @@ class TrackingConfig:
         See ``reidentify_m`` [mm].
     """
 
-    link_mm: float = 5.0
+    link_mm: float = 3.0
     x_mm_per_m: float = 150.0
     z_mm_per_m: float = 40.0
     gate_mm: float = 20.0
