@@ -13,6 +13,8 @@ import pytest
 
 from catenary_linescan.processor.tracking import (
     MIN_TRACK_M,
+    RESTING_ACROSS_MM,
+    RESTING_MM,
     UNCERTAIN_COLUMN,
     TrackedPoints,
     TrackingConfig,
@@ -127,9 +129,14 @@ def overlap_stream(seed: int = 0) -> tuple[Stream, np.ndarray, np.ndarray]:
     stream.points(22, arms, xa[arms] + 300.0, za[arms] + 80.0)  # steady arm, 3 scans
     noise = rng.integers(0, p.shape[0], 400)
     stream.points(30, noise, rng.uniform(-600, 600, 400), rng.uniform(1300, 3500, 400))
-    # B below the messenger gap above A, and above it, with the heights' noise aside
+    # B where it runs (below the messenger gap above A, and not raised over it in plan) and
+    # where it does not, with the points' noise aside
     gap = TrackingConfig().messenger_gap_mm
-    return stream, in_b & (zb < 1800.0 + gap - 3.0), in_b & (zb > 1800.0 + gap + 3.0)
+    lift = zb - 1800.0
+    across = np.abs(xb - xa)
+    running = (lift < gap - 3.0) & ((across > RESTING_ACROSS_MM + 3.0) | (lift < RESTING_MM - 3.0))
+    raised = (lift > gap + 3.0) | ((across < RESTING_ACROSS_MM - 3.0) & (lift > RESTING_MM + 3.0))
+    return stream, in_b & running, in_b & raised
 
 
 @pytest.mark.parametrize("block", [1024, 333])
@@ -150,7 +157,7 @@ def test_overlap_stable_numbers_no_false_wire(block: int) -> None:
     b_in = np.zeros(stream.position.shape, bool)
     b_in[s[t == 1]] = True
     assert np.count_nonzero(b_out & b_contact) >= 0.999 * np.count_nonzero(b_in & b_contact)
-    assert not np.any(b_out & b_raised)  # raised more than 300 mm: not reported
+    assert not np.any(b_out & b_raised)  # raised out of running: not reported
     # what the tracker holds back stays bounded: under 3 m of points
     assert held < 3 * 3.0 / SPACING_M
 
@@ -292,6 +299,29 @@ def test_scattered_two_view_ghosts_beneath_a_wire_leave_it_certain() -> None:
     _, wire, truth, _, _, _ = run(stream, 1024, two_view=(30,))
     assert set(np.unique(truth).tolist()) == {0}
     assert np.unique(wire).tolist() == [0]
+
+
+def test_a_crossing_keeps_both_wires_and_drops_the_pipe_on_them() -> None:
+    # a turnout's wire crosses the main one at 4°, riding 12 mm over it at the crossing; a
+    # 1.6 m cross-over pipe lies on the main wire 37 mm above its contact point
+    stream = Stream(9000, seed=13)
+    p = stream.position
+    main = np.full(p.shape, -50.0)
+    branch = -50.0 + (p - 75.0) * np.tan(np.radians(4.0)) * 1000.0
+    seen = np.abs(branch) < 600.0
+    stream.wire(0, main, np.full(p.shape, 1600.0), np.ones(p.shape, bool))
+    ride = 12.0 * np.clip(1.0 - np.abs(branch - main) / 15.0, 0.0, 1.0)
+    stream.wire(1, branch, 1600.0 + ride + np.maximum(p - 80.0, 0.0) * 20.0, seen)
+    pipe = np.flatnonzero(np.abs(p - 75.0) < 0.8)
+    stream.points(20, pipe, main[pipe] + 8.0, np.full(pipe.shape, 1637.0))
+    _, wire, truth, _, _, _ = run(stream, 1024)
+    assert set(np.unique(truth).tolist()) == {0, 1}
+    s, _, _, t = stream.arrays()
+    for label in (0, 1):  # each wire wherever it runs within the messenger gap
+        assert np.count_nonzero(truth == label) >= 0.99 * np.count_nonzero(
+            (t == label) & (stream.position[s] < 80.0 + 190.0 / 20.0)
+        )
+        assert np.unique(wire[truth == label]).shape == (1,)
 
 
 def test_a_lost_wire_keeps_its_number() -> None:

@@ -23,14 +23,16 @@ the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 m
 4. **removes messengers by height** at release: a point more than ``messenger_gap_mm`` above
    the lowest confirmed track at its scan (each track's height interpolated across the
    scans where it was missed) is not a contact wire — a messenger, or a contact wire raised
-   out of running at an overlap's end on its way to its anchor. The contact wire is the
-   lowest wire of its system, so a point with a lower wire's evidence beneath it is not
-   reported as a contact wire either, even when that wire's points made no confirmed track
-   (a worn wire seen intermittently by daylight): ``LOWER_WIRE_POINTS`` verified points of
-   other tracks within ``max_gap_m`` along the track (as far as the tracker sees ahead),
-   more than
-   ``messenger_gap_mm`` below the point's track, mark it ``selection_uncertain`` (a column
-   of the released points): the selection cannot tell which wire runs there;
+   out of running at an overlap's end on its way to its anchor — nor is one more than
+   ``RESTING_MM`` above a track within ``RESTING_ACROSS_MM`` across (a crossing's pipe on
+   the wire, a wire riding over it). The contact wire is the lowest wire of its system, so
+   a point with a lower wire's evidence beneath it is not reported as a contact wire
+   either, even when that wire's points made no confirmed track (a worn wire scattered by
+   daylight, or one only two cameras saw): points of no confirmed track within
+   ``max_gap_m`` along the track (as far as the tracker sees ahead), more than
+   ``messenger_gap_mm`` below the point's track, ``LOWER_WIRE_POINTS`` of them verified or
+   ``LOWER_WIRE_SHARE`` of the track's own two-view, mark it ``selection_uncertain`` (a
+   column of the released points): the selection cannot tell which wire runs there;
 5. **numbers** each track at its first contact point (0, 1, ... in order of appearance) and
    keeps the number through the run: a track that ended up to ``reidentify_m`` before and
    near where the new one starts hands its number over;
@@ -71,6 +73,15 @@ LOWER_WIRE_POINTS = 5
 """Fewest verified points beneath a track that show a lower wire there (``MIN_TRACK_POINTS``:
 as few as a track needs; a fitting below the contact wire does not exist, and noise is not
 verified by three cameras)."""
+
+RESTING_MM = 30.0
+"""Height above a wire [mm] from which a point close across it rests on it rather than being
+it: twice the thickest wire's diameter (15 mm). A wire crossing over another at a turnout
+rides one diameter higher, and both are running there; two tracks of one wire whose heights
+disagree (a new wire by day, located by its silhouettes) differ by less."""
+
+RESTING_ACROSS_MM = 30.0
+"""Distance across [mm] within which a point above a wire rests on it: two wire widths."""
 
 LOWER_WIRE_SHARE = 0.25
 """Fewest two-view points beneath a track, as a share of the track's own points nearby, that
@@ -362,9 +373,9 @@ class WireTracker:
         self._open: dict[int, _Track] = {}  # tracks that can still grow
         self._closed: dict[int, _Track] = {}  # confirmed tracks that ended, points still held
         self._lost: list[_Track] = []  # numbered tracks that ended, for re-identification
-        # per track, the scan, position and height of the point released last, and the scan,
-        # position, x and z of the verified point released last
-        self._last_released: dict[int, tuple[int, float, float]] = {}
+        # per track, the scan, position, x and z of the point released last, and of the
+        # verified point released last
+        self._last_released: dict[int, tuple[int, float, float, float]] = {}
         self._last_verified: dict[int, tuple[int, float, float, float]] = {}
         # points released within max_gap_m (position, height, track, verified): step 4
         self._behind = _Store.empty()
@@ -780,9 +791,7 @@ class WireTracker:
         released = store.split(store.scan < horizon_scan)
         tracks = {**self._closed, **{t.id: t for t in self._open.values() if t.confirmed}}
         wire_track = np.isin(released.track, list(tracks))
-        lowest = self._lowest_wire(released, tracks)
-        with np.errstate(invalid="ignore"):
-            contact = wire_track & ~(released.z_mm > lowest + self.config.messenger_gap_mm)
+        contact = wire_track & ~self._above_a_wire(released, tracks)
         uncertain = contact & self._lower_wire_beneath(released, contact, tracks)
         # numbers, for tracks whose first contact point this is (in order of appearance)
         wire = np.full(released.scan.shape[0], -1, dtype=np.int64)
@@ -824,7 +833,7 @@ class WireTracker:
         """Whether a lower wire shows beneath each ``candidate`` released point (step 4).
 
         Counts, within ``max_gap_m`` along the track (released before, now, or held ahead),
-        the points of no confirmed track (those are ``_lowest_wire``'s) that lie more than
+        the points of no confirmed track (those are ``_above_a_wire``'s) that lie more than
         ``messenger_gap_mm`` below the point's own track, its height interpolated at theirs.
         ``LOWER_WIRE_POINTS`` verified ones are a lower wire; two-view (unverified) ones
         only when they are also at least ``LOWER_WIRE_SHARE`` of the track's own points
@@ -874,36 +883,43 @@ class WireTracker:
             )
         return beneath
 
-    def _lowest_wire(self, released: _Store, tracks: Mapping[int, _Track]) -> FloatArray:
-        """Lowest height of any confirmed track at each released point's scan [mm].
+    def _above_a_wire(self, released: _Store, tracks: Mapping[int, _Track]) -> NDArray[np.bool_]:
+        """Whether each released point lies above a confirmed track at its scan: more than
+        ``messenger_gap_mm`` above the lowest (a messenger, a wire raised out of running), or
+        more than ``RESTING_MM`` above one within ``RESTING_ACROSS_MM`` across (a crossing's
+        pipe resting on the wire, a wire riding over it: the pantograph touches the lower).
 
-        Each track's height is interpolated between its points (so a scan where it was
-        missed still counts) and held beyond its ends for ``max_gap_m`` (a wire missed in the
-        first or last scans it is seen in).
+        Each track is interpolated between its points (so a scan where it was missed still
+        counts) and held beyond its ends for ``max_gap_m`` (a wire missed in the first or
+        last scans it is seen in).
         """
         lowest = np.full(released.scan.shape[0], np.inf)
+        resting = np.zeros(released.scan.shape[0], dtype=bool)
         store = self._store
         reach = self.config.max_gap_m
         for track_id in tracks:  # one step per wire in view
             mine = released.track == track_id
             ahead = store.track == track_id
-            scans = [released.scan[mine], store.scan[ahead]]
-            positions = [released.position_m[mine], store.position_m[ahead]]
-            heights = [released.z_mm[mine], store.z_mm[ahead]]
+            parts = [
+                (
+                    released.scan[mine],
+                    released.position_m[mine],
+                    released.x_mm[mine],
+                    released.z_mm[mine],
+                ),
+                (store.scan[ahead], store.position_m[ahead], store.x_mm[ahead], store.z_mm[ahead]),
+            ]
             if track_id in self._last_released:
-                last_scan, last_m, last_z = self._last_released[track_id]
-                scans.insert(0, np.array([last_scan]))
-                positions.insert(0, np.array([last_m]))
-                heights.insert(0, np.array([last_z]))
-            s = np.concatenate(scans)
+                parts.insert(0, tuple(np.array([v]) for v in self._last_released[track_id]))
+            s, p, x, h = (np.concatenate([part[i] for part in parts]) for i in range(4))
             if s.shape[0] == 0:
                 continue
-            p = np.concatenate(positions)
-            h = np.concatenate(heights)
-            z = np.interp(released.scan, s, h)
             near = (released.position_m >= p[0] - reach) & (released.position_m <= p[-1] + reach)
-            lowest = np.minimum(lowest, np.where(near, z, np.inf))
-        return np.where(np.isfinite(lowest), lowest, np.nan)
+            z = np.where(near, np.interp(released.scan, s, h), np.inf)
+            lowest = np.minimum(lowest, z)
+            across = np.abs(np.interp(released.scan, s, x) - released.x_mm)
+            resting |= (across <= RESTING_ACROSS_MM) & (released.z_mm > z + RESTING_MM)
+        return resting | (released.z_mm > lowest + self.config.messenger_gap_mm)
 
     def _on_track(self, released: _Store) -> NDArray[np.bool_]:
         """Whether each released point is verified, or lies where its track's verified points
@@ -976,6 +992,7 @@ class WireTracker:
                     self._last_released[track_id] = (
                         int(released.scan[row]),
                         float(released.position_m[row]),
+                        float(released.x_mm[row]),
                         float(released.z_mm[row]),
                     )
             sure = released.verified
