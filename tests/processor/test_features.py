@@ -407,6 +407,44 @@ def test_two_wires_with_sky_between_them_stay_two() -> None:
     np.testing.assert_allclose(f.right_px[1::2], 550.0 + phases, atol=0.4)
 
 
+def unworn_behind_the_filter(left: float, width: float = 32.0, n: int = 1024) -> np.ndarray:
+    """An unworn wire by day behind the band-pass filter on a dim sky (12 DN of 255): a sharp
+    dark side (3 DN) rising to its lit bottom (16 DN), then a shallow dark side (9 DN) a fifth
+    of the wire wide, blurred by 1 px (Gaussian) and pixel-integrated: the shape of the
+    simulator's lines that the features missed (``new-wire-filter``, cameras 1 and 2)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    sub = 16
+    x = (np.arange(n * sub) + 0.5) / sub - 0.5
+    t = (x - left) / width
+    wire = np.interp(t, [0.0, 0.6, 0.75, 0.8, 1.0], [3.0, 16.0, 11.0, 9.0, 9.0])
+    fine = np.where((t >= 0.0) & (t <= 1.0), wire, 12.0)
+    blurred: np.ndarray = gaussian_filter1d(fine, float(sub)).reshape(n, sub).mean(axis=1)
+    return blurred
+
+
+def test_an_unworn_wire_behind_the_filter_keeps_its_shallow_side() -> None:
+    """Its shallow dark side (3 DN below the sky over a few pixels) and its lit bottom are too
+    faint over a bin to be detected: the run was its sharp dark side alone, the sky of step 3
+    was taken inside the wire and the shallow side's boundary was lost (the wire found in 2 of
+    128 lines, else a centre 4-8 px off). The run now reaches where the sky begins."""
+    left = np.array([500.0 + p + 8 * k for k in range(4) for p in np.linspace(0, 1, 16, False)])
+    rng = np.random.default_rng(7)
+    clean = np.stack([unworn_behind_the_filter(a) for a in left])
+    lines = np.clip(np.rint(clean + rng.normal(0.0, 0.5, clean.shape)), 0, 255).astype(np.uint8)
+    lines = np.concatenate([lines, lines[:, ::-1]])  # the shallow side on the left too
+    left = np.concatenate([left, 1023.0 - (left + 32.0)])
+    config = FeatureConfig.from_resolution((10.6, 14.8), (0.27, 0.5))
+    f = extract_features(lines, 8, config=config)
+    near = np.abs(f.wire_centre_px - (left[f.scan] + 16.0)) < 3.0
+    assert np.unique(f.scan[near]).shape[0] >= 0.9 * left.shape[0]
+    errors = np.abs(
+        np.r_[f.left_px[near] - left[f.scan[near]], f.right_px[near] - left[f.scan[near]] - 32.0]
+    )
+    assert np.median(errors) < 0.4
+    assert np.max(errors) < 1.2
+
+
 def test_cloud_texture_on_the_sky_pixels_does_not_move_a_boundary() -> None:
     """A narrow cloud (6 DN) on the sky pixels beside a wire: the sky ramp through them is
     wrong by a few DN next to the wire, which used to pull the right boundary 15 px into the

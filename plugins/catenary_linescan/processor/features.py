@@ -24,9 +24,13 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
    and its dark sides); runs wider than a wire can be are dropped (registration arms,
    droppers seen along their length, glare). Two dark runs are one candidate too when the
    undetected run between them is narrower than the widest wire, together they span no
-   more than the widest wire, and it is darker than the sky beside them: a dark silhouette
-   whose worn face, lit from below, is almost as bright as the sky (white daylight), not two
-   wires with the sky between them (``_dark_joins``).
+   more than the widest wire, and it is darker or brighter than the sky beside them: a dark
+   silhouette whose worn face, lit from below, is almost as bright as the sky (white
+   daylight), or an unworn wire's lit bottom between its dark sides (behind the filter), not
+   two wires with the sky between them (``_dark_joins``). A candidate then reaches to where
+   the sky begins beside it: the nearest bin within a wire's width that differs from the
+   flat sky just beyond it, that sky agreeing with the sky beyond its other end
+   (``_extents``: a faint side of a wire, undetected, is not left out of step 3).
 3. **Wire boundaries** (step 2). On a pixel window per candidate, after a light
    ``[1, 2, 1] / 4`` smoothing, against the sky measured just beside it (clear of its
    neighbours): the run's extreme deviation gives the polarity and the contrast (it must
@@ -692,6 +696,7 @@ def _candidates(
     first = np.flatnonzero(new)
     last = np.append(first[1:] - 1, row.shape[0] - 1)
     row, start, stop = row[first], start[first], stop[last]
+    start, stop = _extents(sums, sigma, cfg, row, start, stop)
     # the sky beside a candidate is measured clear of its neighbours' runs by a bin
     same = row[1:] == row[:-1]
     far = 1 << 30
@@ -699,6 +704,74 @@ def _candidates(
     gap_r = np.concatenate((np.where(same, (start[1:] - 1) * b, far), [far]))
     keep = (stop - start) * b <= cfg.max_width + 2 * b
     return row[keep], start[keep], stop[keep], gap_l[keep], gap_r[keep]
+
+
+def _extents(
+    sums: NDArray[np.float32],
+    sigma: NDArray[np.float32],
+    cfg: FeatureConfig,
+    row: IndexArray,
+    start: IndexArray,
+    stop: IndexArray,
+) -> tuple[IndexArray, IndexArray]:
+    """The candidates ``[start, stop)`` [bins] of lines ``row`` ``(m,)`` extended to where the
+    sky begins beside them.
+
+    Detection compares a bin with the background a wire's width away, whose texture may
+    differ by ``detect_rel``: parts of a wire whose mean contrast over a bin is low (the dark
+    side of an unworn wire by day behind the band-pass filter, a few pixels of a few DN beside
+    its lit bottom, and that lit bottom itself) may stay undetected, and step 3 would then
+    measure the sky inside the wire and lose its boundary. The wire ends at the nearest bin
+    (within the widest wire, and half-way to a neighbouring run) that differs from the sky
+    just beyond it, the mean of the next two bins, where that sky is flat (the two agree) and
+    agrees with the sky beyond the run's other end (not a neighbouring object): each within
+    ``detect_k`` noise deviations or the sky's texture (half ``detect_rel`` between
+    neighbouring bins, ``detect_rel`` pro rata over ``background`` across the wire).
+    """
+    b = cfg.bin_px
+    nb = sums.shape[1]
+    reach = int(cfg.wire_width_px[1] // b)
+    same = row[1:] == row[:-1]
+    half_gap = (start[1:] - stop[:-1] - 1) // 2
+    room_r = np.append(np.where(same, half_gap, reach), reach)
+    room_l = np.concatenate(([reach], np.where(same, half_gap, reach)))
+    noise = cfg.detect_k * sigma[row] * math.sqrt(1.5 * b)  # a bin sum less a two-bin mean
+    flat = sums.ravel()
+    base = row * nb
+
+    def two_bins(first: IndexArray, out: int) -> tuple[FloatArray, FloatArray]:
+        """The sums of bins ``first`` and ``first + out`` (clipped to the line)."""
+        return flat[base + np.clip(first, 0, nb - 1)], flat[base + np.clip(first + out, 0, nb - 1)]
+
+    def extension(out: int, first: IndexArray, far: IndexArray, room: IndexArray) -> IndexArray:
+        """Bins to add beyond bin ``first`` in direction ``out`` (at most ``room``); ``far``
+        is the first bin beyond the other end."""
+        other = 0.5 * np.add(*two_bins(far, -out))
+        found = np.zeros_like(first)
+        for e in range(reach, 0, -1):  # the nearest end wins
+            end = first + out * e
+            one, two = two_bins(end + out, out)
+            sky = 0.5 * (one + two)
+            level = np.maximum(noise, np.float32(0.5 * cfg.detect_rel) * sky)
+            across = np.abs(end + 2 * out - far) * (b * cfg.detect_rel / cfg.background)
+            ends = (np.abs(flat[base + np.clip(end, 0, nb - 1)] - sky) > level) & (
+                np.abs(one - two) <= level
+            )
+            ends &= np.abs(sky - other) <= np.maximum(noise, across * sky)
+            ends &= (e <= room) & (end + 2 * out >= 0) & (end + 2 * out < nb)
+            found[ends] = e
+        return found
+
+    # each side against the sky beyond the other end, once that end is extended (a run may
+    # hold the middle of a wire only): right, left, and right again where it was not extended
+    right = extension(1, stop - 1, start - 1, np.minimum(room_r, reach - (stop - start)))
+    stop = stop + right
+    left = extension(-1, start, stop, np.minimum(room_l, reach - (stop - start)))
+    start = start - left
+    again = (right == 0) & (left > 0)
+    room = np.where(again, np.minimum(room_r, reach - (stop - start)), 0)
+    stop = stop + extension(1, stop - 1, start - 1, room)
+    return start, stop
 
 
 def _dark_joins(
@@ -713,18 +786,18 @@ def _dark_joins(
     start_sign: np.ndarray,
 ) -> NDArray[np.bool_] | None:
     """Which consecutive runs (``i`` with ``i + 1``) are one dark silhouette split at its worn
-    face; None when none are.
+    face or its lit bottom; None when none are.
 
     Two dark runs are one wire when the bright run between them is narrower than the widest
     wire, together they span no more than the widest wire (and the two bins its ends may
     reach into), and that bright run is not the sky: a face is a surface of the wire lit by
-    what lies below it (the ground, the vehicle), darker than the sky, while the sky between
-    two separate objects (two messengers side by side) is the sky's level. A face brighter
-    than the sky by ``detect_rel`` is detected as a bright run and joined to its dark sides
-    already; one brighter by less is not told from the sky. The sky is the brightest of the
-    two bins on either side beyond a bin clear of the pair (a neighbour never makes the gap
-    look like a face); the gap's level is its brightest three-pixel mean (clear of the
-    blurred dark sides). Sky texture allowed: ``detect_rel`` of the sky's level over a
+    what lies below it (the ground, the vehicle), darker than the sky, and an unworn wire's
+    bottom lit by the vehicle's strobe behind the band-pass filter is brighter than the dim
+    sky (by less than ``detect_rel`` over a bin, its dark sides beside it), while the sky
+    between two separate objects (two messengers side by side) is the sky's level. The sky is
+    the brightest of the two bins on either side beyond a bin clear of the pair (a neighbour
+    never makes the gap look like a face); the gap's level is its brightest three-pixel mean
+    (clear of the blurred dark sides). Sky texture allowed: ``detect_rel`` of the sky's level over a
     background window, pro rata over the distance from the gap to the sky measured. A group
     of such runs wider than a wire is not joined.
     """
@@ -759,7 +832,7 @@ def _dark_joins(
     reach = np.maximum(middle - (start[pair] - 2.5) * b, (stop[pair + 1] + 2.5) * b - middle)
     texture = cfg.detect_rel * reach / cfg.background * sky
     noise = cfg.detect_k * sigma[r] * math.sqrt(1.0 / 3.0 + 1.0 / b)
-    face = sky - gap > np.maximum(texture, noise)
+    face = np.abs(sky - gap) > np.maximum(texture, noise)
     pair = pair[face]
     if pair.shape[0] == 0:
         return None
