@@ -735,42 +735,49 @@ def _extents(
     half_gap = (start[1:] - stop[:-1] - 1) // 2
     room_r = np.append(np.where(same, half_gap, reach), reach)
     room_l = np.concatenate(([reach], np.where(same, half_gap, reach)))
-    noise = cfg.detect_k * sigma[row] * math.sqrt(1.5 * b)  # a bin sum less a two-bin mean
+    noise = (sigma[row] * np.float32(cfg.detect_k * math.sqrt(1.5 * b))).astype(np.float32)
     flat = sums.ravel()
     base = row * nb
+    rel = np.float32(0.5 * cfg.detect_rel)
+    across_rel = np.float32(b * cfg.detect_rel / cfg.background)
+    steps = np.arange(1, reach + 3)[:, None]
 
-    def two_bins(first: IndexArray, out: int) -> tuple[FloatArray, FloatArray]:
-        """The sums of bins ``first`` and ``first + out`` (clipped to the line)."""
-        return flat[base + np.clip(first, 0, nb - 1)], flat[base + np.clip(first + out, 0, nb - 1)]
-
-    def extension(out: int, first: IndexArray, far: IndexArray, room: IndexArray) -> IndexArray:
-        """Bins to add beyond bin ``first`` in direction ``out`` (at most ``room``); ``far``
-        is the first bin beyond the other end."""
-        other = 0.5 * np.add(*two_bins(far, -out))
-        found = np.zeros_like(first)
-        for e in range(reach, 0, -1):  # the nearest end wins
-            end = first + out * e
-            one, two = two_bins(end + out, out)
-            sky = 0.5 * (one + two)
-            level = np.maximum(noise, np.float32(0.5 * cfg.detect_rel) * sky)
-            across = np.abs(end + 2 * out - far) * (b * cfg.detect_rel / cfg.background)
-            ends = (np.abs(flat[base + np.clip(end, 0, nb - 1)] - sky) > level) & (
-                np.abs(one - two) <= level
-            )
-            ends &= np.abs(sky - other) <= np.maximum(noise, across * sky)
-            ends &= (e <= room) & (end + 2 * out >= 0) & (end + 2 * out < nb)
-            found[ends] = e
+    def extension(
+        out: int, sel: IndexArray, first: IndexArray, far: IndexArray, room: IndexArray
+    ) -> IndexArray:
+        """Bins ``(len(sel),)`` to add to candidates ``sel`` beyond their bin ``first`` in
+        direction ``out``, at most ``room``; ``far`` is the first bin beyond their other end."""
+        at = base[sel]
+        other = flat[at + np.clip(far, 0, nb - 1)] + flat[at + np.clip(far - out, 0, nb - 1)]
+        # the two bins beyond the last one added stay on the line
+        room = np.minimum(room, nb - 3 - first if out > 0 else first - 2)
+        pos = first + out * steps  # (reach + 2, k): bin ``first + out * e`` at row e - 1
+        strip = flat[at + np.clip(pos, 0, nb - 1)]
+        one, two = strip[1:-1], strip[2:]  # the sky beyond each candidate end
+        sky = one + two
+        sky *= np.float32(0.5)
+        level = np.maximum(noise[sel], rel * sky)
+        ends = np.abs(strip[:-2] - sky) > level
+        ends &= np.abs(one - two) <= level
+        across = (np.abs(first - far) + 2 + steps[:-2]).astype(np.float32) * across_rel * sky
+        ends &= np.abs(sky - np.float32(0.5) * other) <= np.maximum(noise[sel], across)
+        ends &= steps[:-2] <= room
+        nearest = np.argmax(ends, axis=0)
+        found: IndexArray = np.where(ends[nearest, np.arange(sel.shape[0])], nearest + 1, 0)
         return found
 
     # each side against the sky beyond the other end, once that end is extended (a run may
-    # hold the middle of a wire only): right, left, and right again where it was not extended
-    right = extension(1, stop - 1, start - 1, np.minimum(room_r, reach - (stop - start)))
+    # hold the middle of a wire only): right, left, and right again where it was not extended;
+    # no further than half-way to a neighbour, no wider than the widest wire
+    every = np.arange(row.shape[0])
+    right = extension(1, every, stop - 1, start - 1, np.minimum(room_r, reach - (stop - start)))
     stop = stop + right
-    left = extension(-1, start, stop, np.minimum(room_l, reach - (stop - start)))
+    left = extension(-1, every, start, stop, np.minimum(room_l, reach - (stop - start)))
     start = start - left
-    again = (right == 0) & (left > 0)
-    room = np.where(again, np.minimum(room_r, reach - (stop - start)), 0)
-    stop = stop + extension(1, stop - 1, start - 1, room)
+    again = np.flatnonzero((right == 0) & (left > 0))
+    if again.shape[0]:
+        room = np.minimum(room_r[again], reach - (stop - start)[again])
+        stop[again] += extension(1, again, stop[again] - 1, start[again] - 1, room)
     return start, stop
 
 
