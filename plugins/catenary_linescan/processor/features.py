@@ -747,23 +747,35 @@ def _extents(
     ) -> IndexArray:
         """Bins ``(len(sel),)`` to add to candidates ``sel`` beyond their bin ``first`` in
         direction ``out``, at most ``room``; ``far`` is the first bin beyond their other end."""
-        at = base[sel]
+        pos = first + out * steps  # (reach + 2, k): bin ``first + out * e`` at row e - 1
+        strip = flat[base[sel] + np.clip(pos, 0, nb - 1)]
+        found = np.zeros(sel.shape[0], dtype=np.intp)
+        # a bin differs from the sky beyond it by more than the noise only where the bins
+        # beyond the run are not all within the noise of each other (the sky, mostly)
+        live = np.flatnonzero(strip.max(axis=0) - strip.min(axis=0) > noise[sel])
+        if live.shape[0] == 0:
+            return found
+        at = base[sel[live]]
+        strip, first, far, room = strip[:, live], first[live], far[live], room[live]
+        near_noise = noise[sel[live]]
         other = flat[at + np.clip(far, 0, nb - 1)] + flat[at + np.clip(far - out, 0, nb - 1)]
+        other *= np.float32(0.5)
         # the two bins beyond the last one added stay on the line
         room = np.minimum(room, nb - 3 - first if out > 0 else first - 2)
-        pos = first + out * steps  # (reach + 2, k): bin ``first + out * e`` at row e - 1
-        strip = flat[at + np.clip(pos, 0, nb - 1)]
         one, two = strip[1:-1], strip[2:]  # the sky beyond each candidate end
         sky = one + two
         sky *= np.float32(0.5)
-        level = np.maximum(noise[sel], rel * sky)
+        level = np.maximum(near_noise, rel * sky)
         ends = np.abs(strip[:-2] - sky) > level
         ends &= np.abs(one - two) <= level
-        across = (np.abs(first - far) + 2 + steps[:-2]).astype(np.float32) * across_rel * sky
-        ends &= np.abs(sky - np.float32(0.5) * other) <= np.maximum(noise[sel], across)
+        distance = (np.abs(first - far) + 2).astype(np.float32) + steps[:-2].astype(np.float32)
+        across = distance * across_rel
+        across *= sky
+        sky -= other
+        ends &= np.abs(sky) <= np.maximum(near_noise, across)
         ends &= steps[:-2] <= room
         nearest = np.argmax(ends, axis=0)
-        found: IndexArray = np.where(ends[nearest, np.arange(sel.shape[0])], nearest + 1, 0)
+        found[live] = np.where(ends[nearest, np.arange(live.shape[0])], nearest + 1, 0)
         return found
 
     # each side against the sky beyond the other end, once that end is extended (a run may
