@@ -324,6 +324,22 @@ def test_a_crossing_keeps_both_wires_and_drops_the_pipe_on_them() -> None:
         assert np.unique(wire[truth == label]).shape == (1,)
 
 
+def test_a_messenger_alone_where_its_contact_wire_was_lost_is_uncertain() -> None:
+    # the contact wire not matched over 20 m (glare), its messenger seen all along
+    stream = Stream(12000, seed=14)
+    p = stream.position
+    x = zigzag(p)
+    seen = (p < 60.0) | (p > 80.0)
+    stream.wire(0, x, np.full(p.shape, 1500.0), seen)
+    stream.wire(10, x, np.full(p.shape, 2700.0), np.ones(p.shape, bool), miss=0.0)
+    scan, _, truth, _, _, uncertain = run(stream, 1024, uncertain_rows=True)
+    assert not np.any((truth == 10) & ~uncertain)
+    lost = (stream.position[scan] > 61.5) & (stream.position[scan] < 78.5)
+    assert np.all(uncertain[lost & (truth == 10)])
+    assert np.count_nonzero(lost & (truth == 10)) > 0.9 * 17.0 / SPACING_M
+    assert not np.any(uncertain[truth == 0])
+
+
 def test_a_lost_wire_keeps_its_number() -> None:
     # wire A is not matched over 5 m (a blinded camera and a missed detection): longer than
     # the gap a track bridges, shorter than re-identification; wire B stays in view

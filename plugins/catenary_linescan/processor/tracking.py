@@ -32,7 +32,9 @@ the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 m
    ``max_gap_m`` along the track (as far as the tracker sees ahead), more than
    ``messenger_gap_mm`` below the point's track, ``LOWER_WIRE_POINTS`` of them verified or
    ``LOWER_WIRE_SHARE`` of the track's own two-view, mark it ``selection_uncertain`` (a
-   column of the released points): the selection cannot tell which wire runs there;
+   column of the released points): the selection cannot tell which wire runs there. So
+   does a track alone in view that was last seen above another wire, not level with one:
+   a messenger whose contact wire the cameras lost;
 5. **numbers** each track at its first contact point (0, 1, ... in order of appearance) and
    keeps the number through the run: a track that ended up to ``reidentify_m`` before and
    near where the new one starts hands its number over;
@@ -380,6 +382,8 @@ class WireTracker:
         # points released within max_gap_m (position, height, track, verified): step 4
         self._behind = _Store.empty()
         self._released_m = -np.inf  # position of the last point released
+        # per track, whether it was last seen above another wire (1) or level with one (-1)
+        self._above: dict[int, int] = {}
         self._next_track = 0
         self._next_wire = 0
         self._last_m = -np.inf
@@ -791,8 +795,10 @@ class WireTracker:
         released = store.split(store.scan < horizon_scan)
         tracks = {**self._closed, **{t.id: t for t in self._open.values() if t.confirmed}}
         wire_track = np.isin(released.track, list(tracks))
-        contact = wire_track & ~self._above_a_wire(released, tracks)
+        above, company = self._above_a_wire(released, tracks)
+        contact = wire_track & ~above
         uncertain = contact & self._lower_wire_beneath(released, contact, tracks)
+        uncertain |= contact & self._above_before(released, wire_track, above, company)
         # numbers, for tracks whose first contact point this is (in order of appearance)
         wire = np.full(released.scan.shape[0], -1, dtype=np.int64)
         rows = np.flatnonzero(contact)
@@ -883,8 +889,11 @@ class WireTracker:
             )
         return beneath
 
-    def _above_a_wire(self, released: _Store, tracks: Mapping[int, _Track]) -> NDArray[np.bool_]:
-        """Whether each released point lies above a confirmed track at its scan: more than
+    def _above_a_wire(
+        self, released: _Store, tracks: Mapping[int, _Track]
+    ) -> tuple[NDArray[np.bool_], IntArray]:
+        """Whether each released point lies above a confirmed track at its scan, and how many
+        confirmed tracks are in view there (its own included). Above is more than
         ``messenger_gap_mm`` above the lowest (a messenger, a wire raised out of running), or
         more than ``RESTING_MM`` above one within ``RESTING_ACROSS_MM`` across (a crossing's
         pipe resting on the wire, a wire riding over it: the pantograph touches the lower).
@@ -895,6 +904,7 @@ class WireTracker:
         """
         lowest = np.full(released.scan.shape[0], np.inf)
         resting = np.zeros(released.scan.shape[0], dtype=bool)
+        company = np.zeros(released.scan.shape[0], dtype=np.int64)
         store = self._store
         reach = self.config.max_gap_m
         for track_id in tracks:  # one step per wire in view
@@ -910,16 +920,40 @@ class WireTracker:
                 (store.scan[ahead], store.position_m[ahead], store.x_mm[ahead], store.z_mm[ahead]),
             ]
             if track_id in self._last_released:
-                parts.insert(0, tuple(np.array([v]) for v in self._last_released[track_id]))
+                ls, lp, lx, lz = (np.array([v]) for v in self._last_released[track_id])
+                parts.insert(0, (ls, lp, lx, lz))
             s, p, x, h = (np.concatenate([part[i] for part in parts]) for i in range(4))
             if s.shape[0] == 0:
                 continue
             near = (released.position_m >= p[0] - reach) & (released.position_m <= p[-1] + reach)
             z = np.where(near, np.interp(released.scan, s, h), np.inf)
             lowest = np.minimum(lowest, z)
+            company += near
             across = np.abs(np.interp(released.scan, s, x) - released.x_mm)
             resting |= (across <= RESTING_ACROSS_MM) & (released.z_mm > z + RESTING_MM)
-        return resting | (released.z_mm > lowest + self.config.messenger_gap_mm)
+        return resting | (released.z_mm > lowest + self.config.messenger_gap_mm), company
+
+    def _above_before(
+        self,
+        released: _Store,
+        wire_track: NDArray[np.bool_],
+        above: NDArray[np.bool_],
+        company: IntArray,
+    ) -> NDArray[np.bool_]:
+        """Whether each released point of a confirmed track is alone in view on a track that
+        was last seen above another wire (step 4): a messenger whose contact wire the cameras
+        lost. A track that came level with another wire since (an overlap's wire come down
+        into running) is not. Remembers each track's last state for the next call."""
+        state = np.where(above, 1, np.where(company > 1, -1, 0))
+        result = np.zeros(released.scan.shape[0], dtype=bool)
+        for track_id in np.unique(released.track[wire_track]).tolist():  # one step per wire
+            mine = np.flatnonzero(released.track == track_id)
+            states = np.concatenate([[self._above.get(track_id, 0)], state[mine]])
+            said = np.maximum.accumulate(np.where(states != 0, np.arange(states.shape[0]), 0))
+            last = states[said]  # the last state that was not "alone", carried forward
+            result[mine] = (state[mine] == 0) & (last[1:] == 1)
+            self._above[track_id] = int(last[-1])
+        return result
 
     def _on_track(self, released: _Store) -> NDArray[np.bool_]:
         """Whether each released point is verified, or lies where its track's verified points
@@ -1015,12 +1049,12 @@ class WireTracker:
             if track_id not in held and track.end_m + reach < self._released_m:
                 del self._closed[track_id]
         alive = set(self._open) | set(self._closed)
-        for book in (self._last_released, self._last_verified):
+        for book in (self._last_released, self._last_verified, self._above):
             for track_id in [t for t in book if t not in alive]:
                 del book[track_id]
 
 
 def _window_count(rows: NDArray[np.bool_], first: IntArray, last: IntArray) -> IntArray:
     """How many of ``rows`` lie in each window ``first[i]:last[i]`` (cumulative sums)."""
-    total = np.concatenate([[0], np.cumsum(rows)])
-    return total[last] - total[first]
+    total = np.concatenate([[0], np.cumsum(rows, dtype=np.int64)])
+    return np.asarray(total[last] - total[first], dtype=np.int64)
