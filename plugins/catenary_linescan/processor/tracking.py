@@ -28,11 +28,10 @@ the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 m
    the wire, a wire riding over it). The contact wire is the lowest wire of its system, so
    a point with a lower wire's evidence beneath it is not reported as a contact wire
    either, even when that wire's points made no confirmed track (a worn wire scattered by
-   daylight, or one only two cameras saw): points of no confirmed track within
+   daylight): ``LOWER_WIRE_POINTS`` verified points of no confirmed track within
    ``max_gap_m`` along the track (as far as the tracker sees ahead), more than
-   ``messenger_gap_mm`` below the point's track, ``LOWER_WIRE_POINTS`` of them verified or
-   ``LOWER_WIRE_SHARE`` of the track's own two-view, mark it ``selection_uncertain`` (a
-   column of the released points): the selection cannot tell which wire runs there. So
+   ``messenger_gap_mm`` below the point's track, mark it ``selection_uncertain`` (a column
+   of the released points): the selection cannot tell which wire runs there. So
    does a track alone in view that was last seen above another wire, not level with one:
    a messenger whose contact wire the cameras lost;
 5. **numbers** each track at its first contact point (0, 1, ... in order of appearance) and
@@ -85,10 +84,6 @@ disagree (a new wire by day, located by its silhouettes) differ by less."""
 RESTING_ACROSS_MM = 30.0
 """Distance across [mm] within which a point above a wire rests on it: two wire widths."""
 
-LOWER_WIRE_SHARE = 0.25
-"""Fewest two-view points beneath a track, as a share of the track's own points nearby, that
-show a lower wire there (ghosts of two views are single points, a few in a metre)."""
-
 
 MIN_TRACK_POINTS = 5
 """Fewest points of a track accepted as a wire."""
@@ -140,9 +135,10 @@ class TrackingConfig:
         Shortest track accepted as a wire [m] (``MIN_TRACK_M``).
     min_coverage : float
         Fraction of its scans in which a track must have a point to be a wire: noise does
-        not chain across gaps into a track (points verified by three cameras do not chain
-        by chance), while a worn wire that the cameras see in one scan of ten (its face as
-        bright as a white sky) still makes one.
+        not chain across gaps into a track, nor do the ghosts that two wires close together
+        make in a few scans, while a worn wire that the cameras see in one scan of five (its
+        face as bright as a white sky) still makes one; a wire seen less often shows
+        beneath its messenger (step 4).
     messenger_gap_mm : float
         Height above the lowest contact wire from which a wire is a messenger [mm]: below the
         300 mm a messenger keeps above its contact wire at its lowest (the shortest dropper
@@ -164,7 +160,7 @@ class TrackingConfig:
     gap_gate_mm_per_m: float = 40.0
     max_gap_m: float = 1.0
     min_track_m: float = MIN_TRACK_M
-    min_coverage: float = 0.1
+    min_coverage: float = 0.2
     messenger_gap_mm: float = 200.0
     reidentify_m: float = 100.0
     reidentify_mm: float = 60.0
@@ -379,7 +375,7 @@ class WireTracker:
         # verified point released last
         self._last_released: dict[int, tuple[int, float, float, float]] = {}
         self._last_verified: dict[int, tuple[int, float, float, float]] = {}
-        # points released within max_gap_m (position, height, track, verified): step 4
+        # verified points released within max_gap_m (position, height, track): step 4
         self._behind = _Store.empty()
         self._released_m = -np.inf  # position of the last point released
         # per track, whether it was last seen above another wire (1) or level with one (-1)
@@ -839,43 +835,39 @@ class WireTracker:
         """Whether a lower wire shows beneath each ``candidate`` released point (step 4).
 
         Counts, within ``max_gap_m`` along the track (released before, now, or held ahead),
-        the points of no confirmed track (those are ``_above_a_wire``'s) that lie more than
-        ``messenger_gap_mm`` below the point's own track, its height interpolated at theirs.
-        ``LOWER_WIRE_POINTS`` verified ones are a lower wire; two-view (unverified) ones
-        only when they are also at least ``LOWER_WIRE_SHARE`` of the track's own points
-        there: two views scatter ghosts here and there, a wire that only two cameras saw
-        shows in about as many scans as the wire above it. Remembers the points released
-        now for the next call.
+        the verified points of no confirmed track (those are ``_above_a_wire``'s) that lie
+        more than ``messenger_gap_mm`` below the point's own track, its height interpolated
+        at theirs: ``LOWER_WIRE_POINTS`` of them are a lower wire. Two-view points do not
+        count: two cameras that see two wires close together make chains of ghosts beneath
+        them. Remembers the verified points released now for the next call.
         """
         store, reach = self._store, self.config.max_gap_m
-        parts = (self._behind, released, store)
+        parts = (self._behind, released.take(released.verified), store.take(store.verified))
         position = np.concatenate([part.position_m for part in parts])
         order = np.argsort(position, kind="stable")
         position = position[order]
         height = np.concatenate([part.z_mm for part in parts])[order]
         track = np.concatenate([part.track for part in parts])[order]
-        verified = np.concatenate([part.verified for part in parts])[order]
-        ahead = np.concatenate(
-            [
-                np.zeros(self._behind.scan.shape[0] + released.scan.shape[0], bool),
-                np.ones(store.scan.shape[0], bool),
-            ]
-        )[order]
+        ahead = np.repeat([False, False, True], [part.scan.shape[0] for part in parts])[order]
         unconfirmed = ~np.isin(track, list(tracks))
         beneath = np.zeros(released.scan.shape[0], dtype=bool)
         for track_id in np.unique(released.track[candidate]).tolist():  # one step per wire
-            own = track == track_id
             mine = candidate & (released.track == track_id)
-            own_height = np.interp(position, position[own], height[own])
+            own_m = np.concatenate(
+                [
+                    released.position_m[released.track == track_id],
+                    store.position_m[store.track == track_id],
+                ]
+            )
+            own_z = np.concatenate(
+                [released.z_mm[released.track == track_id], store.z_mm[store.track == track_id]]
+            )
+            at = np.argsort(own_m, kind="stable")
+            own_height = np.interp(position, own_m[at], own_z[at])
             lower = unconfirmed & (height < own_height - self.config.messenger_gap_mm)
             first = np.searchsorted(position, released.position_m[mine] - reach, side="left")
             last = np.searchsorted(position, released.position_m[mine] + reach, side="right")
-            sure = _window_count(lower & verified, first, last)
-            seen = _window_count(lower & ~verified, first, last)
-            beneath[mine] = (sure >= LOWER_WIRE_POINTS) | (
-                (seen >= LOWER_WIRE_POINTS)
-                & (seen >= LOWER_WIRE_SHARE * _window_count(own, first, last))
-            )
+            beneath[mine] = _window_count(lower, first, last) >= LOWER_WIRE_POINTS
         if released.scan.shape[0]:
             done = ~ahead & (position >= released.position_m[-1] - reach)
             self._behind = _Store(
@@ -884,7 +876,7 @@ class WireTracker:
                 np.zeros(int(done.sum())),
                 height[done],
                 track[done],
-                verified[done],
+                np.ones(int(done.sum()), bool),
                 {},
             )
         return beneath
@@ -966,7 +958,7 @@ class WireTracker:
         config = self.config
         ok = released.verified.copy()
         store = self._store
-        for track_id in np.unique(released.track[~ok & (released.track >= 0)]).tolist():
+        for track_id in np.unique(released.track[~ok]).tolist():  # one step per track
             mine = released.track == track_id
             ahead = (store.track == track_id) & store.verified
             sure = mine & released.verified
