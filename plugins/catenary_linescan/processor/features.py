@@ -746,8 +746,17 @@ def _dark_faces(
     widest = cfg.wire_width_px[1] + 2 * b
     room = np.floor(widest / b).astype(np.intp) - (stop - start)  # bins a face may take
     flat = detected.ravel()
-    dark_end = (flat[row * nb + stop - 1] < 0) & (room > 1)
-    dark_start = (flat[row * nb + start] < 0) & (room > 1)
+    base = row * nb
+    dark_end = (flat[base + stop - 1] < 0) & (room > 1)
+    dark_start = (flat[base + start] < 0) & (room > 1)
+    # at once, most of them: a face's second bin is darker than the sky beyond its room (the
+    # second bin beside a dark wire's run is the sky)
+    level = sums.ravel()
+    darker = np.float32(1.0 - cfg.edge_rel)
+    far = darker * level[base + np.minimum(stop + room + 2, nb - 1)]
+    dark_end &= level[base + np.minimum(stop + 1, nb - 1)] < far
+    far = darker * level[base + np.maximum(start - room - 3, 0)]
+    dark_start &= level[base + np.maximum(start - 2, 0)] < far
     if not (np.any(dark_end) or np.any(dark_start)):
         return start, stop
     # both sides at once: the bins from the run outward, the right sides then the left ones
