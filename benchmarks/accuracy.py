@@ -149,6 +149,18 @@ CASES = [
         note="messengers 300-400 mm above their contact wires at the masts",
     ),
     Case(
+        "limit-filter",
+        {"seed": 117, "lighting": "day-filter", "overlap": False, "curve_radius_m": 0.0},
+        {"wear_base_mm": (11.3, 11.6), "contact_height_above_roof_mm": (2220.0, 2620.0)},
+        note="faces 11-12 mm, 2300-2500 mm above the roof, with the filter",
+    ),
+    Case(
+        "limit-white",
+        {"seed": 118, "lighting": "day-white", "overlap": False, "curve_radius_m": 0.0},
+        {"wear_base_mm": (11.3, 11.6), "contact_height_above_roof_mm": (1220.0, 1620.0)},
+        note="faces 11-12 mm, 1300-1500 mm above the roof, white daylight",
+    ),
+    Case(
         "blind-camera",
         {
             "seed": 111,
