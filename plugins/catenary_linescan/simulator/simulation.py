@@ -385,7 +385,8 @@ class Simulation:
         return stream.at(t)
 
     def _glare(self, distance_m: FloatArray) -> FloatArray:
-        """Sun glare strength 0-1 per scan: on over ``sun_blind_span``, ramped over 3 m."""
+        """Sun glare strength per scan: ``sun_blind_strength`` over ``sun_blind_span``, ramped
+        in and out over 3 m."""
         if self.settings.sun_blind is None:
             return np.zeros_like(distance_m)
         low, high = self.settings.sun_blind_span
@@ -393,7 +394,8 @@ class Simulation:
         stop = high * self.settings.length_m
         ramp_in = np.clip((distance_m - start) / 3.0, 0.0, 1.0)
         ramp_out = np.clip((stop - distance_m) / 3.0, 0.0, 1.0)
-        return np.asarray(np.minimum(ramp_in, ramp_out), dtype=np.float64)
+        strength = self.settings.sun_blind_strength * np.minimum(ramp_in, ramp_out)
+        return np.asarray(strength, dtype=np.float64)
 
     def _fitting_layers(
         self,
