@@ -176,11 +176,16 @@ def simulation(case: Case, quick: bool, sensors: dict[str, float] | None = None)
     settings = {"length_m": 150.0, **case.settings, **(sensors or {})}
     if quick:
         settings["length_m"] = min(settings["length_m"], 150.0 if settings.get("overlap") else 60.0)
-    sim = Simulation(parse_settings(settings))
-    if case.scene:
-        params = replace(sim.settings.scene_params(), **case.scene)
-        sim.scene = generate_scene(params, sim.settings.seed)
-    return sim
+    return build_simulation(settings, case.scene)
+
+
+def build_simulation(settings: dict[str, Any], scene: dict[str, Any]) -> Simulation:
+    """A simulation from ``settings`` (``parse_settings``) whose scene is generated with the
+    :class:`SceneParams` fields in ``scene`` changed (heights, wear ... that the settings do
+    not reach)."""
+    parsed = parse_settings(settings)
+    params = replace(parsed.scene_params(), **scene)
+    return Simulation(parsed, generate_scene(params, parsed.scene_rng_seed))
 
 
 @dataclass
