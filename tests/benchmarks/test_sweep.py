@@ -47,6 +47,11 @@ def test_the_draw_covers_the_space_and_repeats(sweep: ModuleType) -> None:
         assert low + 80.0 >= 1300.0 and high - 120.0 <= 2500.0
         assert (d.blind_camera is not None) == (d.condition in ("glare", "blind"))
         assert d.condition != "blind" or d.cameras >= 3
+        low, high = d.scene_params()["system_height_mm"]
+        assert sweep.SYSTEM_HEIGHT_MM[0] <= low < high <= sweep.SYSTEM_HEIGHT_MM[1]
+        assert d.turnout_angle_deg is None or 2.0 <= d.turnout_angle_deg <= 10.0
+    turnouts = [d.turnout_angle_deg for d in draws if d.turnout_angle_deg is not None]
+    assert bool(turnouts) == sweep.EXTENDED_SCENES
 
 
 def test_targets_are_judged(sweep: ModuleType) -> None:
