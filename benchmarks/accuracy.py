@@ -59,7 +59,13 @@ from catenary.measurement.wear import (
 from catenary_linescan.calibrate import calibrate_from_captures, rig_from_reports
 from catenary_linescan.processor.stereo import LineScanProcessor
 from catenary_linescan.rig import Rig
-from catenary_linescan.simulator import DEMO_RIG_PATH, Simulation, load_rig, parse_settings
+from catenary_linescan.simulator import (
+    DEMO_RIG_PATH,
+    SimRig,
+    Simulation,
+    load_rig,
+    parse_settings,
+)
 from catenary_linescan.simulator.captures import write_captures
 from catenary_linescan.simulator.scene import generate_scene
 from catenary_wiretypes import load_profiles
@@ -174,15 +180,16 @@ CASES = [
 ]
 
 
-def calibrated_rig(workdir: Path) -> Rig:
-    """The demo rig calibrated from simulated captures, as ``catenary calibrate`` does it.
+def calibrated_rig(workdir: Path, sim_rig: SimRig | None = None, *, seed: int = 7) -> Rig:
+    """A simulated rig (default: the demo rig) calibrated from its simulated captures, as
+    ``catenary calibrate`` does it; ``workdir`` receives the captures.
 
     The targets are assigned with the nominal camera poses of the mounting drawing (the
     simulated rig's design values: position, tilt, focal length, principal point at the
     line's middle, no distortion); everything else comes from the captures.
     """
-    sim_rig = load_rig(DEMO_RIG_PATH)
-    captures, _ = write_captures(workdir / "captures.h5", sim_rig, seed=7)
+    sim_rig = sim_rig or load_rig(DEMO_RIG_PATH)
+    captures, _ = write_captures(workdir / "captures.h5", sim_rig, seed=seed)
     reports = calibrate_from_captures(
         captures, distortion=None, approximate=sim_rig.nominal_models()
     )
@@ -194,11 +201,16 @@ def simulation(case: Case, quick: bool, sensors: dict[str, float] | None = None)
     settings = {"length_m": 150.0, **case.settings, **(sensors or {})}
     if quick:
         settings["length_m"] = min(settings["length_m"], 150.0 if settings.get("overlap") else 60.0)
-    sim = Simulation(parse_settings(settings))
-    if case.scene:
-        params = replace(sim.settings.scene_params(), **case.scene)
-        sim.scene = generate_scene(params, sim.settings.seed)
-    return sim
+    return build_simulation(settings, case.scene)
+
+
+def build_simulation(settings: dict[str, Any], scene: dict[str, Any]) -> Simulation:
+    """A simulation from ``settings`` (``parse_settings``) whose scene is generated with the
+    :class:`SceneParams` fields in ``scene`` changed (heights, wear ... that the settings do
+    not reach)."""
+    parsed = parse_settings(settings)
+    params = replace(parsed.scene_params(), **scene)
+    return Simulation(parsed, generate_scene(params, parsed.scene_rng_seed))
 
 
 @dataclass
@@ -249,7 +261,17 @@ def run_case(
     sensors: dict[str, float] | None = None,
     filter_hz: float = DEFAULT_FILTER_HZ,
 ) -> dict[str, Any]:
-    sim = simulation(case, quick, sensors)
+    result = measure(simulation(case, quick, sensors), rig, screen, filter_hz=filter_hz)
+    result.update(case=case.name, note=case.note)
+    return result
+
+
+def measure(
+    sim: Simulation, rig: Rig, screen: bool = True, *, filter_hz: float = DEFAULT_FILTER_HZ
+) -> dict[str, Any]:
+    """Process a simulated run with the calibrated ``rig`` and score it (:func:`evaluate`);
+    adds ``scans``, ``seconds`` (simulation and processing), ``processing_s`` and the
+    processor's ``table_check``."""
     processor = LineScanProcessor(rig)
     got = Collected()
     bit_depth = {c.name: c.bit_depth for c in sim.rig.cameras}
@@ -281,8 +303,6 @@ def run_case(
     wire_type = {p.name: p for p in load_profiles()}[sim.scene.wire_type.name]
     result = evaluate(got, contact, wire_type, rig, screen)
     result.update(
-        case=case.name,
-        note=case.note,
         scans=sim.scans,
         seconds=time.perf_counter() - started,
         processing_s=processing,
