@@ -92,17 +92,18 @@ def render(
     settings: dict,
     around: str = "overlap",
     half_length_m: float = 75.0,
-    new_wire: bool = False,
+    wear_mm: float | None = None,
     scene: dict | None = None,
 ) -> Section:
     """The scans within ``half_length_m`` of the overlap's middle mast (or the run's middle);
-    ``new_wire``: contact wires without wear; ``scene``: scene parameters that differ."""
+    ``wear_mm``: every contact wire's face held that wide (0: new wires); ``scene``: scene
+    parameters that differ."""
     sim = Simulation(parse_settings({"speed_kmh": SPEED_KMH, **settings}))
     if scene:
         params = replace(sim.settings.scene_params(), **scene)
         sim.scene = generate_scene(params, sim.settings.seed)
-    if new_wire:
-        sim.scene = sim.scene.with_constant_wear(0.0)
+    if wear_mm is not None:
+        sim.scene = sim.scene.with_constant_wear(wear_mm)
     chainage = sim.motion.chainage_m(sim.motion.scan_times(0, sim.scans))
     if around == "overlap":
         centre = sim.scene.masts[sim.scene.overlap_masts[1]].chainage_m
@@ -467,7 +468,7 @@ def test_a_new_wire_is_located_at_its_lowest_point(
     silhouette is the lit bottom, a chord lowered by its sagitta: median +0.76 mm, 90 % within
     1.07 mm (lowered by the radius, as before: median -1.6, 90 % within 1.9 mm)."""
     section = render(
-        {"seed": 41, "lighting": lighting, "overlap": False}, "middle", 20.0, new_wire=True
+        {"seed": 41, "lighting": lighting, "overlap": False}, "middle", 20.0, wear_mm=0.0
     )
     s = score(section, process(rig, section, 1024), rig)
     assert s.false_wires == 0

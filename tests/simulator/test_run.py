@@ -195,6 +195,27 @@ def test_sun_blinded_camera_saturates_for_a_stretch(small_rig: SimRig) -> None:
     assert np.mean(other == 255) < 0.01
 
 
+def test_partial_sun_glare_saturates_part_of_the_line(small_rig: SimRig) -> None:
+    """``sun_blind_strength`` below 1: the halo around the sun saturates part of the line
+    and the rest is veiled, not lost."""
+    stream = open_simulation(
+        settings(
+            small_rig,
+            length_m=30.0,
+            scan_rate_hz=150.0,
+            lighting="day-white",
+            sun_blind="cam3",
+            sun_blind_strength=0.1,
+        )
+    )
+    chunks = list(stream.chunks())
+    glare = np.concatenate([c.truth.sun_glare for c in chunks])
+    blind = np.concatenate([c.lines["cam3"] for c in chunks])
+    assert glare.max() == pytest.approx(0.1)
+    saturated = np.mean(blind[glare == glare.max()] == 255)
+    assert 0.05 < saturated < 0.7
+
+
 def test_night_and_day_polarity(small_rig: SimRig) -> None:
     """At night and with the filtered blue strobe the worn face is bright on a dark sky;
     with white light by day the wire is a dark silhouette whose face is brighter than its

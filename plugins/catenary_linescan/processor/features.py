@@ -27,10 +27,15 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
    more than the widest wire, and it is darker or brighter than the sky beside them: a dark
    silhouette whose worn face, lit from below, is almost as bright as the sky (white
    daylight), or an unworn wire's lit bottom between its dark sides (behind the filter), not
-   two wires with the sky between them (``_dark_joins``). A candidate then reaches to where
-   the sky begins beside it: the nearest bin within a wire's width that differs from the
-   flat sky just beyond it, that sky agreeing with the sky beyond its other end
-   (``_extents``: a faint side of a wire, undetected, is not left out of step 3).
+   two wires with the sky between them (``_dark_joins``). A dark run takes the undetected
+   bins beside it up to a step back to the sky, within the widest wire, when they are darker
+   than the sky beyond that step: near the wear limit a camera that sees the wire obliquely
+   sees the face reach the silhouette on one side, the wire's side on the other is all that
+   is dark, and against the darker background window of a sloping sky the face is not
+   detected (``_dark_faces``). A candidate then reaches to where the sky begins beside it:
+   the nearest bin within a wire's width that differs from the flat sky just beyond it, that
+   sky agreeing with the sky beyond its other end (``_extents``: a faint side of a wire,
+   undetected, is not left out of step 3).
 3. **Wire boundaries** (step 2). On a pixel window per candidate, after a light
    ``[1, 2, 1] / 4`` smoothing, against the sky measured just beside it (clear of its
    neighbours): the run's extreme deviation gives the polarity and the contrast (it must
@@ -63,9 +68,18 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
    than that the two cannot be told apart.
 
 Faces narrower than the optical blur (about 2.5 px) are not resolved: their edges read about
-2.6-2.9 px apart. The point to triangulate (``centre_px``) is the face's centre, the contact
-point, when a face is found, else the middle of the wire's boundaries (the wire's axis, a
-radius above the contact point; ``has_face`` tells which).
+2.6-2.9 px apart. Near the wear limit the opposite: a face edge closer to its silhouette
+than the blur (the wire's side between them a strip of ``g`` px at level ``D``, the sky
+``S`` beyond, the face ``F``) merges with it into one step, to first order a step from ``S``
+to ``F`` at ``g (F - D) / (F - S)`` px from the silhouette: the edge is located
+``g (S - D) / (F - S)`` px inward of the face's. No estimator on one line tells ``g`` from
+``D``. Bright faces on a sky brighter than the wire's sides (by day behind the filter: about
+``0.1 g``) read narrow; dark silhouettes (white daylight, ``S`` far above ``F``) read wide by
+more than ``g`` where the face is taken to reach the silhouette (step 4).
+
+The point to triangulate (``centre_px``) is the face's centre, the contact point, when a face
+is found, else the middle of the wire's boundaries (the wire's axis, a radius above the
+contact point; ``has_face`` tells which).
 
 Conventions: the centre of pixel ``i`` is at ``u = i`` (FORMATS.md); the first difference
 ``x[i + 1] - x[i]`` sits at ``u = i + 0.5``. Everything is vectorised over the block: the
@@ -696,6 +710,7 @@ def _candidates(
     first = np.flatnonzero(new)
     last = np.append(first[1:] - 1, row.shape[0] - 1)
     row, start, stop = row[first], start[first], stop[last]
+    start, stop = _dark_faces(detected, sums, sigma, cfg, row, start, stop)
     start, stop = _extents(sums, sigma, cfg, row, start, stop)
     # the sky beside a candidate is measured clear of its neighbours' runs by a bin
     same = row[1:] == row[:-1]
@@ -790,6 +805,97 @@ def _extents(
     if again.shape[0]:
         room = np.minimum(room_r[again], reach - (stop - start)[again])
         stop[again] += extension(1, again, stop[again] - 1, start[again] - 1, room)
+    return start, stop
+
+
+def _dark_faces(
+    detected: NDArray[np.int8],
+    sums: NDArray[np.float32],
+    sigma: NDArray[np.float32],
+    cfg: FeatureConfig,
+    row: IndexArray,
+    start: IndexArray,
+    stop: IndexArray,
+) -> tuple[IndexArray, IndexArray]:
+    """Candidate runs ``[start, stop)`` [bins] extended over an undetected worn face beside a
+    dark run (white daylight near the wear limit).
+
+    When a face is almost as wide as its wire, a camera that looks at the wire obliquely sees
+    the face reach the silhouette on one side: the wire's only dark part is its side beyond
+    the face's other edge, and the face, lit from below, may be too little darker than the
+    darker of the two background windows (a sky that brightens toward the sun) to be
+    detected. The run is then the wire's dark side alone. A face is there when the bins after
+    the run (before it, mirrored) step up to the sky within the widest wire, two bins out at
+    least (a wire covers two whole bins at least; one bin is the partial bin at the end of a
+    dark wire), darker than the sky just beyond that step by ``detect_rel`` of it (the test
+    that detects any object, against the sky beside it rather than the darker background
+    window) and the noise, and lit: brighter than the run's darkest bin (the wire's side) by a
+    step of ``edge_rel`` of the sky (a neighbour's dark silhouette beside the wire is not);
+    the run takes them.
+    """
+    b = cfg.bin_px
+    nb = sums.shape[1]
+    widest = cfg.wire_width_px[1] + 2 * b
+    room = np.floor(widest / b).astype(np.intp) - (stop - start)  # bins a face may take
+    flat = detected.ravel()
+    base = row * nb
+    dark_end = (flat[base + stop - 1] < 0) & (room > 1)
+    dark_start = (flat[base + start] < 0) & (room > 1)
+    # at once, most of them: a face's second bin is darker than the sky beyond its room (the
+    # second bin beside a dark wire's run is the sky)
+    level = sums.ravel()
+    darker = np.float32(1.0 - cfg.edge_rel)
+    far = darker * level[base + np.minimum(stop + room + 2, nb - 1)]
+    dark_end &= level[base + np.minimum(stop + 1, nb - 1)] < far
+    far = darker * level[base + np.maximum(start - room - 3, 0)]
+    dark_start &= level[base + np.maximum(start - 2, 0)] < far
+    if not (np.any(dark_end) or np.any(dark_start)):
+        return start, stop
+    # both sides at once: the bins from the run outward, the right sides then the left ones
+    pick = np.concatenate([np.flatnonzero(dark_end), np.flatnonzero(dark_start)])
+    out = np.concatenate(
+        [
+            np.ones(np.count_nonzero(dark_end), np.intp),
+            -np.ones(np.count_nonzero(dark_start), np.intp),
+        ]
+    )
+    reach = int(room[pick].max())
+    k = np.arange(reach + 3)
+    at = np.where(out > 0, stop[pick], start[pick] - 1)[:, None] + out[:, None] * k
+    inside = (at >= 0) & (at < nb)
+    at = np.clip(at, 0, nb - 1)
+    r = row[pick][:, None]
+    vals = sums[r, at] * np.float32(1.0 / b)
+    taken = (detected[r, at] != 0) | ~inside
+    # the step up to the sky: the largest rise over the face's room, two bins out at least
+    # (one bin between a dark run and the sky is its edge's partial bin, not a face)
+    rise = vals[:, 1:] - vals[:, :-1]
+    within = (k[None, :-1] >= 1) & (k[None, :-1] < room[pick][:, None])
+    rise = np.where(within, rise, -np.inf)
+    e = np.argmax(rise, axis=1)
+    rows = np.arange(pick.shape[0])
+    sky = np.maximum(
+        vals[rows, np.minimum(e + 2, reach + 2)], vals[rows, np.minimum(e + 3, reach + 2)]
+    )
+    face_bins = k[None, :] <= e[:, None]
+    # its level: the median of its bins (those at its ends may hold the side or the sky)
+    ordered = np.sort(np.where(face_bins, vals, np.inf), axis=1)
+    face = 0.5 * (ordered[rows, e // 2] + ordered[rows, (e + 1) // 2])
+    # the run's darkest bin: the wire's dark side (a run here is narrower than a wire)
+    cols = start[pick][:, None] + np.arange(int((stop - start)[pick].max()))
+    own = np.where(cols < stop[pick][:, None], sums[r, np.minimum(cols, nb - 1)], np.inf)
+    side = own.min(axis=1) * np.float32(1.0 / b)
+    lit = np.where(face_bins, vals, np.inf).min(axis=1) - side
+    free = ~np.any(taken & (k[None, :] <= e[:, None] + 3), axis=1)  # no other run in it
+    noise = cfg.detect_k * sigma[row[pick]] * math.sqrt(2.0 / b)
+    step = np.maximum(cfg.edge_rel * sky, noise)
+    dark = sky - face > np.maximum(cfg.detect_rel * sky, noise)
+    ok = free & (rise[rows, e] > step) & (lit > step) & dark
+    start, stop = start.copy(), stop.copy()
+    right = ok & (out > 0)
+    left = ok & (out < 0)
+    stop[pick[right]] += e[right] + 1
+    start[pick[left]] -= e[left] + 1
     return start, stop
 
 

@@ -28,11 +28,12 @@ the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 m
    the wire, a wire riding over it). The contact wire is the lowest wire of its system, so
    a point with a lower wire's evidence beneath it is not reported as a contact wire
    either, even when that wire's points made no confirmed track (a worn wire scattered by
-   daylight, or one only two cameras saw): points of no confirmed track within
+   daylight): ``LOWER_WIRE_POINTS`` verified points of no confirmed track within
    ``max_gap_m`` along the track (as far as the tracker sees ahead), more than
-   ``messenger_gap_mm`` below the point's track, ``LOWER_WIRE_POINTS`` of them verified or
-   ``LOWER_WIRE_SHARE`` of the track's own two-view, mark it ``selection_uncertain`` (a
-   column of the released points): the selection cannot tell which wire runs there;
+   ``messenger_gap_mm`` below the point's track, mark it ``selection_uncertain`` (a column
+   of the released points): the selection cannot tell which wire runs there. So
+   does a track alone in view that was last seen above another wire, not level with one:
+   a messenger whose contact wire the cameras lost;
 5. **numbers** each track at its first contact point (0, 1, ... in order of appearance) and
    keeps the number through the run: a track that ended up to ``reidentify_m`` before and
    near where the new one starts hands its number over;
@@ -82,10 +83,6 @@ disagree (a new wire by day, located by its silhouettes) differ by less."""
 
 RESTING_ACROSS_MM = 30.0
 """Distance across [mm] within which a point above a wire rests on it: two wire widths."""
-
-LOWER_WIRE_SHARE = 0.25
-"""Fewest two-view points beneath a track, as a share of the track's own points nearby, that
-show a lower wire there (ghosts of two views are single points, a few in a metre)."""
 
 
 MIN_TRACK_POINTS = 5
@@ -138,9 +135,10 @@ class TrackingConfig:
         Shortest track accepted as a wire [m] (``MIN_TRACK_M``).
     min_coverage : float
         Fraction of its scans in which a track must have a point to be a wire: noise does
-        not chain across gaps into a track (points verified by three cameras do not chain
-        by chance), while a worn wire that the cameras see in one scan of ten (its face as
-        bright as a white sky) still makes one.
+        not chain across gaps into a track, nor do the ghosts that two wires close together
+        make in a few scans, while a worn wire that the cameras see in one scan of five (its
+        face as bright as a white sky) still makes one; a wire seen less often shows
+        beneath its messenger (step 4).
     messenger_gap_mm : float
         Height above the lowest contact wire from which a wire is a messenger [mm]: below the
         300 mm a messenger keeps above its contact wire at its lowest (the shortest dropper
@@ -162,7 +160,7 @@ class TrackingConfig:
     gap_gate_mm_per_m: float = 40.0
     max_gap_m: float = 1.0
     min_track_m: float = MIN_TRACK_M
-    min_coverage: float = 0.1
+    min_coverage: float = 0.2
     messenger_gap_mm: float = 200.0
     reidentify_m: float = 100.0
     reidentify_mm: float = 60.0
@@ -377,9 +375,11 @@ class WireTracker:
         # verified point released last
         self._last_released: dict[int, tuple[int, float, float, float]] = {}
         self._last_verified: dict[int, tuple[int, float, float, float]] = {}
-        # points released within max_gap_m (position, height, track, verified): step 4
+        # verified points released within max_gap_m (position, height, track): step 4
         self._behind = _Store.empty()
         self._released_m = -np.inf  # position of the last point released
+        # per track, whether it was last seen above another wire (1) or level with one (-1)
+        self._above: dict[int, int] = {}
         self._next_track = 0
         self._next_wire = 0
         self._last_m = -np.inf
@@ -791,8 +791,10 @@ class WireTracker:
         released = store.split(store.scan < horizon_scan)
         tracks = {**self._closed, **{t.id: t for t in self._open.values() if t.confirmed}}
         wire_track = np.isin(released.track, list(tracks))
-        contact = wire_track & ~self._above_a_wire(released, tracks)
+        above, company = self._above_a_wire(released, tracks)
+        contact = wire_track & ~above
         uncertain = contact & self._lower_wire_beneath(released, contact, tracks)
+        uncertain |= contact & self._above_before(released, wire_track, above, company)
         # numbers, for tracks whose first contact point this is (in order of appearance)
         wire = np.full(released.scan.shape[0], -1, dtype=np.int64)
         rows = np.flatnonzero(contact)
@@ -833,43 +835,39 @@ class WireTracker:
         """Whether a lower wire shows beneath each ``candidate`` released point (step 4).
 
         Counts, within ``max_gap_m`` along the track (released before, now, or held ahead),
-        the points of no confirmed track (those are ``_above_a_wire``'s) that lie more than
-        ``messenger_gap_mm`` below the point's own track, its height interpolated at theirs.
-        ``LOWER_WIRE_POINTS`` verified ones are a lower wire; two-view (unverified) ones
-        only when they are also at least ``LOWER_WIRE_SHARE`` of the track's own points
-        there: two views scatter ghosts here and there, a wire that only two cameras saw
-        shows in about as many scans as the wire above it. Remembers the points released
-        now for the next call.
+        the verified points of no confirmed track (those are ``_above_a_wire``'s) that lie
+        more than ``messenger_gap_mm`` below the point's own track, its height interpolated
+        at theirs: ``LOWER_WIRE_POINTS`` of them are a lower wire. Two-view points do not
+        count: two cameras that see two wires close together make chains of ghosts beneath
+        them. Remembers the verified points released now for the next call.
         """
         store, reach = self._store, self.config.max_gap_m
-        parts = (self._behind, released, store)
+        parts = (self._behind, released.take(released.verified), store.take(store.verified))
         position = np.concatenate([part.position_m for part in parts])
         order = np.argsort(position, kind="stable")
         position = position[order]
         height = np.concatenate([part.z_mm for part in parts])[order]
         track = np.concatenate([part.track for part in parts])[order]
-        verified = np.concatenate([part.verified for part in parts])[order]
-        ahead = np.concatenate(
-            [
-                np.zeros(self._behind.scan.shape[0] + released.scan.shape[0], bool),
-                np.ones(store.scan.shape[0], bool),
-            ]
-        )[order]
+        ahead = np.repeat([False, False, True], [part.scan.shape[0] for part in parts])[order]
         unconfirmed = ~np.isin(track, list(tracks))
         beneath = np.zeros(released.scan.shape[0], dtype=bool)
         for track_id in np.unique(released.track[candidate]).tolist():  # one step per wire
-            own = track == track_id
             mine = candidate & (released.track == track_id)
-            own_height = np.interp(position, position[own], height[own])
+            own_m = np.concatenate(
+                [
+                    released.position_m[released.track == track_id],
+                    store.position_m[store.track == track_id],
+                ]
+            )
+            own_z = np.concatenate(
+                [released.z_mm[released.track == track_id], store.z_mm[store.track == track_id]]
+            )
+            at = np.argsort(own_m, kind="stable")
+            own_height = np.interp(position, own_m[at], own_z[at])
             lower = unconfirmed & (height < own_height - self.config.messenger_gap_mm)
             first = np.searchsorted(position, released.position_m[mine] - reach, side="left")
             last = np.searchsorted(position, released.position_m[mine] + reach, side="right")
-            sure = _window_count(lower & verified, first, last)
-            seen = _window_count(lower & ~verified, first, last)
-            beneath[mine] = (sure >= LOWER_WIRE_POINTS) | (
-                (seen >= LOWER_WIRE_POINTS)
-                & (seen >= LOWER_WIRE_SHARE * _window_count(own, first, last))
-            )
+            beneath[mine] = _window_count(lower, first, last) >= LOWER_WIRE_POINTS
         if released.scan.shape[0]:
             done = ~ahead & (position >= released.position_m[-1] - reach)
             self._behind = _Store(
@@ -878,13 +876,16 @@ class WireTracker:
                 np.zeros(int(done.sum())),
                 height[done],
                 track[done],
-                verified[done],
+                np.ones(int(done.sum()), bool),
                 {},
             )
         return beneath
 
-    def _above_a_wire(self, released: _Store, tracks: Mapping[int, _Track]) -> NDArray[np.bool_]:
-        """Whether each released point lies above a confirmed track at its scan: more than
+    def _above_a_wire(
+        self, released: _Store, tracks: Mapping[int, _Track]
+    ) -> tuple[NDArray[np.bool_], IntArray]:
+        """Whether each released point lies above a confirmed track at its scan, and how many
+        confirmed tracks are in view there (its own included). Above is more than
         ``messenger_gap_mm`` above the lowest (a messenger, a wire raised out of running), or
         more than ``RESTING_MM`` above one within ``RESTING_ACROSS_MM`` across (a crossing's
         pipe resting on the wire, a wire riding over it: the pantograph touches the lower).
@@ -895,6 +896,7 @@ class WireTracker:
         """
         lowest = np.full(released.scan.shape[0], np.inf)
         resting = np.zeros(released.scan.shape[0], dtype=bool)
+        company = np.zeros(released.scan.shape[0], dtype=np.int64)
         store = self._store
         reach = self.config.max_gap_m
         for track_id in tracks:  # one step per wire in view
@@ -910,16 +912,40 @@ class WireTracker:
                 (store.scan[ahead], store.position_m[ahead], store.x_mm[ahead], store.z_mm[ahead]),
             ]
             if track_id in self._last_released:
-                parts.insert(0, tuple(np.array([v]) for v in self._last_released[track_id]))
+                ls, lp, lx, lz = (np.array([v]) for v in self._last_released[track_id])
+                parts.insert(0, (ls, lp, lx, lz))
             s, p, x, h = (np.concatenate([part[i] for part in parts]) for i in range(4))
             if s.shape[0] == 0:
                 continue
             near = (released.position_m >= p[0] - reach) & (released.position_m <= p[-1] + reach)
             z = np.where(near, np.interp(released.scan, s, h), np.inf)
             lowest = np.minimum(lowest, z)
+            company += near
             across = np.abs(np.interp(released.scan, s, x) - released.x_mm)
             resting |= (across <= RESTING_ACROSS_MM) & (released.z_mm > z + RESTING_MM)
-        return resting | (released.z_mm > lowest + self.config.messenger_gap_mm)
+        return resting | (released.z_mm > lowest + self.config.messenger_gap_mm), company
+
+    def _above_before(
+        self,
+        released: _Store,
+        wire_track: NDArray[np.bool_],
+        above: NDArray[np.bool_],
+        company: IntArray,
+    ) -> NDArray[np.bool_]:
+        """Whether each released point of a confirmed track is alone in view on a track that
+        was last seen above another wire (step 4): a messenger whose contact wire the cameras
+        lost. A track that came level with another wire since (an overlap's wire come down
+        into running) is not. Remembers each track's last state for the next call."""
+        state = np.where(above, 1, np.where(company > 1, -1, 0))
+        result = np.zeros(released.scan.shape[0], dtype=bool)
+        for track_id in np.unique(released.track[wire_track]).tolist():  # one step per wire
+            mine = np.flatnonzero(released.track == track_id)
+            states = np.concatenate([[self._above.get(track_id, 0)], state[mine]])
+            said = np.maximum.accumulate(np.where(states != 0, np.arange(states.shape[0]), 0))
+            last = states[said]  # the last state that was not "alone", carried forward
+            result[mine] = (state[mine] == 0) & (last[1:] == 1)
+            self._above[track_id] = int(last[-1])
+        return result
 
     def _on_track(self, released: _Store) -> NDArray[np.bool_]:
         """Whether each released point is verified, or lies where its track's verified points
@@ -932,7 +958,7 @@ class WireTracker:
         config = self.config
         ok = released.verified.copy()
         store = self._store
-        for track_id in np.unique(released.track[~ok & (released.track >= 0)]).tolist():
+        for track_id in np.unique(released.track[~ok]).tolist():  # one step per track
             mine = released.track == track_id
             ahead = (store.track == track_id) & store.verified
             sure = mine & released.verified
@@ -1015,12 +1041,12 @@ class WireTracker:
             if track_id not in held and track.end_m + reach < self._released_m:
                 del self._closed[track_id]
         alive = set(self._open) | set(self._closed)
-        for book in (self._last_released, self._last_verified):
+        for book in (self._last_released, self._last_verified, self._above):
             for track_id in [t for t in book if t not in alive]:
                 del book[track_id]
 
 
 def _window_count(rows: NDArray[np.bool_], first: IntArray, last: IntArray) -> IntArray:
     """How many of ``rows`` lie in each window ``first[i]:last[i]`` (cumulative sums)."""
-    total = np.concatenate([[0], np.cumsum(rows)])
-    return total[last] - total[first]
+    total = np.concatenate([[0], np.cumsum(rows, dtype=np.int64)])
+    return np.asarray(total[last] - total[first], dtype=np.int64)

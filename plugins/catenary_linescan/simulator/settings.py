@@ -17,6 +17,9 @@ Keys of the settings mapping (all optional; units in the names):
 ``overlap``                lay out an overlap (two contact wires) mid-run (true)
 ``sun_blind``              name of a camera blinded by the sun over ``sun_blind_span`` (none)
 ``sun_blind_span``         fractions of the run ``[from, to]`` the sun blinds it ([0.3, 0.6])
+``sun_blind_strength``     the glare's peak strength (1: the camera saturates across its line;
+                           0.02-0.3: only the part of the line near the sun saturates, the
+                           rest is veiled)
 ``speed_kmh``              train speed (60)
 ``scan_rate_hz``           camera trigger rate (1000)
 ``direction``              ``increasing`` or ``decreasing`` chainage (``increasing``)
@@ -79,6 +82,7 @@ class SimulationSettings:
     overlap: bool = True
     sun_blind: str | None = None
     sun_blind_span: tuple[float, float] = (0.3, 0.6)
+    sun_blind_strength: float = 1.0
     speed_kmh: float = 60.0
     scan_rate_hz: float = 1000.0
     direction: str = "increasing"
@@ -152,6 +156,7 @@ class SimulationSettings:
 
 _FLOATS = {
     "length_m",
+    "sun_blind_strength",
     "speed_kmh",
     "scan_rate_hz",
     "start_chainage_m",
@@ -250,6 +255,8 @@ def parse_settings(settings: Mapping[str, Any]) -> SimulationSettings:
                 parsed.turnout_angle_deg,
                 "overlap false with it (a section has an overlap or a turnout)",
             )
+    if not 0.0 < parsed.sun_blind_strength <= 1.0:
+        raise _fail("sun_blind_strength", parsed.sun_blind_strength, "a strength 0 < s <= 1")
     if parsed.sun_blind is not None:
         rig.camera(parsed.sun_blind)  # UserError naming the rig's cameras
     parsed.motion_params().check()

@@ -28,7 +28,7 @@ absent or a value does not apply; every per-scan dataset chunked along scans):
 ``/scans/lateral_mm``                           body lateral displacement (FORMATS.md) ``[N]``
 ``/scans/bounce_mm``                            body bounce, ``(left + right) / 2`` ``[N]``
 ``/scans/left_mm``, ``/scans/right_mm``         noise-free sensor values at the scans ``[N]``
-``/scans/sun_glare``                            sun glare strength 0-1 on the blinded camera
+``/scans/sun_glare``                            sun glare on the blinded camera (0-1)
 ``/wires/id``                                   int ``[M]``: stable wire ids (the column index)
 ``/wires/name``                                 str ``[M]``: ``CW-A``, ``MW-A``, ``CW-B`` ...
                                                 (``CW-T``, ``MW-T``: a turnout's diverging
