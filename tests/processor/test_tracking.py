@@ -311,6 +311,19 @@ def test_a_messenger_alone_where_its_contact_wire_was_lost_is_uncertain() -> Non
     assert not np.any(uncertain[truth == 0])
 
 
+def test_a_wire_higher_than_contact_wires_run_is_a_messenger() -> None:
+    # the contact wire unseen over the first 40 m (a camera glared, another looking along
+    # both wires); its messenger 3,600 mm above the roof, seen all along
+    stream = Stream(6000, seed=15)
+    p = stream.position
+    x = zigzag(p)
+    stream.wire(0, x, np.full(p.shape, 2100.0), p > 40.0)
+    stream.wire(10, x + 7.0, np.full(p.shape, 3600.0), np.ones(p.shape, bool), miss=0.0)
+    _, _, truth, _, _, _ = run(stream, 1024)
+    assert set(np.unique(truth).tolist()) == {0}
+    assert TrackingConfig().max_height_mm < 3600.0
+
+
 def test_a_lost_wire_keeps_its_number() -> None:
     # wire A is not matched over 5 m (a blinded camera and a missed detection): longer than
     # the gap a track bridges, shorter than re-identification; wire B stays in view

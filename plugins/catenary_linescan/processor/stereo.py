@@ -35,6 +35,7 @@ Tracking holds back the points of the last metres until they are decided:
 ``min_track_m``            shortest track taken for a wire (``tracking.MIN_TRACK_M``)
 ``max_gap_m``              longest gap a track bridges (1.0)
 ``messenger_gap_mm``       height above the lowest contact wire of a messenger (200)
+``max_height_mm``          highest a contact wire runs above the roof (3000)
 ``width_tolerance_mm``     cameras further than this from the median face width are left out
 ``table_tolerance``        largest relative difference between the camera model's and the
                            look-up table's resolution accepted before a warning (0.03)
@@ -109,7 +110,12 @@ class ProcessorConfig:
             "confirm_sigmas": float,
             "floor_px": float,
         }
-        tracking_keys = {"min_track_m": float, "max_gap_m": float, "messenger_gap_mm": float}
+        tracking_keys = {
+            "min_track_m": float,
+            "max_gap_m": float,
+            "messenger_gap_mm": float,
+            "max_height_mm": float,
+        }
         own_keys = {"width_tolerance_mm": float, "table_tolerance": float}
         known = {**matching_keys, **tracking_keys, **own_keys, "wire_width_mm": list}
         unknown = sorted(set(settings) - set(known))

@@ -22,8 +22,9 @@ the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 m
    dropped with its points;
 4. **removes messengers by height** at release: a point more than ``messenger_gap_mm`` above
    the lowest confirmed track at its scan (each track's height interpolated across the
-   scans where it was missed) is not a contact wire — a messenger, or a contact wire raised
-   out of running at an overlap's end on its way to its anchor — nor is one more than
+   scans where it was missed), or more than ``max_height_mm`` above the roof, is not a
+   contact wire — a messenger, or a contact wire raised out of running at an overlap's end
+   on its way to its anchor — nor is one more than
    ``RESTING_MM`` above a track within ``RESTING_ACROSS_MM`` across (a crossing's pipe on
    the wire, a wire riding over it). The contact wire is the lowest wire of its system, so
    a point with a lower wire's evidence beneath it is not reported as a contact wire
@@ -151,6 +152,11 @@ class TrackingConfig:
         REIDENTIFY_GROWTH_M)`` of where it ended are the same wire.
     reidentify_mm : float
         See ``reidentify_m`` [mm].
+    max_height_mm : float
+        Highest a contact wire runs above the roof [mm]: 1,300-2,500 mm on the paper's trains,
+        at most 6,500 mm above the rail with tolerances and uplift
+        (``reference/wire-profiles.md``), with room for the body's bounce. A wire higher is a
+        messenger whatever lies beneath it (its contact wire unseen).
     """
 
     link_mm: float = 3.0
@@ -164,6 +170,7 @@ class TrackingConfig:
     messenger_gap_mm: float = 200.0
     reidentify_m: float = 100.0
     reidentify_mm: float = 60.0
+    max_height_mm: float = 3000.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -792,7 +799,7 @@ class WireTracker:
         tracks = {**self._closed, **{t.id: t for t in self._open.values() if t.confirmed}}
         wire_track = np.isin(released.track, list(tracks))
         above, company = self._above_a_wire(released, tracks)
-        contact = wire_track & ~above
+        contact = wire_track & ~above & (released.z_mm <= self.config.max_height_mm)
         uncertain = contact & self._lower_wire_beneath(released, contact, tracks)
         uncertain |= contact & self._above_before(released, wire_track, above, company)
         # numbers, for tracks whose first contact point this is (in order of appearance)
