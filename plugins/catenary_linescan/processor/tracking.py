@@ -907,21 +907,12 @@ class WireTracker:
         store = self._store
         reach = self.config.max_gap_m
         for track_id in tracks:  # one step per wire in view
-            mine = released.track == track_id
-            ahead = store.track == track_id
-            parts = [
-                (
-                    released.scan[mine],
-                    released.position_m[mine],
-                    released.x_mm[mine],
-                    released.z_mm[mine],
-                ),
-                (store.scan[ahead], store.position_m[ahead], store.x_mm[ahead], store.z_mm[ahead]),
-            ]
-            if track_id in self._last_released:
-                ls, lp, lx, lz = (np.array([v]) for v in self._last_released[track_id])
-                parts.insert(0, (ls, lp, lx, lz))
-            s, p, x, h = (np.concatenate([part[i] for part in parts]) for i in range(4))
+            s, p, x, h = self._track_points(
+                released,
+                released.track == track_id,
+                store.track == track_id,
+                self._last_released.get(track_id),
+            )
             if s.shape[0] == 0:
                 continue
             near = (released.position_m >= p[0] - reach) & (released.position_m <= p[-1] + reach)
@@ -954,6 +945,32 @@ class WireTracker:
             self._above[track_id] = int(last[-1])
         return result
 
+    def _track_points(
+        self,
+        released: _Store,
+        mine: NDArray[np.bool_],
+        ahead: NDArray[np.bool_],
+        last: tuple[int, float, float, float] | None,
+    ) -> tuple[IntArray, FloatArray, FloatArray, FloatArray]:
+        """Scan, position, x and z of a track's points ``(k,)`` each, in scan order: ``last``
+        (remembered from an earlier release, or None), the released rows ``mine`` and the
+        held rows ``ahead``."""
+        store = self._store
+        parts = [
+            (
+                released.scan[mine],
+                released.position_m[mine],
+                released.x_mm[mine],
+                released.z_mm[mine],
+            ),
+            (store.scan[ahead], store.position_m[ahead], store.x_mm[ahead], store.z_mm[ahead]),
+        ]
+        if last is not None:
+            ls, lp, lx, lz = (np.array([v]) for v in last)
+            parts.insert(0, (ls, lp, lx, lz))
+        s, p, x, z = (np.concatenate([part[i] for part in parts]) for i in range(4))
+        return s.astype(np.int64), p, x, z
+
     def _on_track(self, released: _Store) -> NDArray[np.bool_]:
         """Whether each released point is verified, or lies where its track's verified points
         put it (interpolated between them, extrapolated beyond) within the tight link gate and
@@ -967,21 +984,12 @@ class WireTracker:
         store = self._store
         for track_id in np.unique(released.track[~ok]).tolist():  # one step per track
             mine = released.track == track_id
-            ahead = (store.track == track_id) & store.verified
-            sure = mine & released.verified
-            parts = [
-                (
-                    released.scan[sure],
-                    released.position_m[sure],
-                    released.x_mm[sure],
-                    released.z_mm[sure],
-                ),
-                (store.scan[ahead], store.position_m[ahead], store.x_mm[ahead], store.z_mm[ahead]),
-            ]
-            if track_id in self._last_verified:
-                ls, lp, lx, lz = (np.array([v]) for v in self._last_verified[track_id])
-                parts.insert(0, (ls, lp, lx, lz))
-            s, p, x, z = (np.concatenate([part[i] for part in parts]) for i in range(4))
+            s, p, x, z = self._track_points(
+                released,
+                mine & released.verified,
+                (store.track == track_id) & store.verified,
+                self._last_verified.get(track_id),
+            )
             rows = np.flatnonzero(mine & ~released.verified)
             if s.shape[0] == 0:
                 continue
