@@ -63,18 +63,23 @@ def blocks(scans: dict[str, np.ndarray], size: int, fault_at: slice | None = Non
         )
 
 
-def observations(scan: np.ndarray, scans: dict[str, np.ndarray], width_mm: float | np.ndarray):
-    """One wire whose *track-frame* stagger is a straight line of SLOPE_MM_PER_M; its width
-    one value or one per scan of the run."""
-    position = scans["position_m"][scan]
-    stagger = -200.0 + SLOPE_MM_PER_M * position
-    height = np.full(scan.shape, 5300.0)
-    # the roof-frame point that maps onto that track-frame point with this scan's sensors
+def seen_at(
+    scan: np.ndarray,
+    scans: dict[str, np.ndarray],
+    stagger_mm: np.ndarray,
+    height_mm: np.ndarray,
+    width_mm: np.ndarray,
+    cameras: int,
+    *,
+    uncertain: bool = False,
+) -> WireObservations:
+    """Wire 0 at these *track-frame* staggers and heights, as the processor gives it: in the
+    roof frame of each scan's sensors."""
     from catenary.measurement.vehicle import track_to_roof
 
     x, z = track_to_roof(
-        stagger,
-        height,
+        stagger_mm,
+        height_mm,
         scans["left_mm"][scan],
         scans["right_mm"][scan],
         scans["lateral_mm"][scan],
@@ -86,10 +91,20 @@ def observations(scan: np.ndarray, scans: dict[str, np.ndarray], width_mm: float
         wire=np.zeros(m, np.int64),
         x_roof_mm=x,
         z_roof_mm=z,
-        wear_width_mm=np.broadcast_to(width_mm, scans["position_m"].shape)[scan].copy(),
-        cameras=np.full(m, 4, np.int64),
+        wear_width_mm=width_mm,
+        cameras=np.full(m, cameras, np.int64),
         reprojection_rms_px=np.zeros(m),
+        selection_uncertain=np.full(m, uncertain),
     )
+
+
+def observations(scan: np.ndarray, scans: dict[str, np.ndarray], width_mm: float | np.ndarray):
+    """One wire whose *track-frame* stagger is a straight line of SLOPE_MM_PER_M; its width
+    one value or one per scan of the run."""
+    position = scans["position_m"][scan]
+    width = np.broadcast_to(width_mm, scans["position_m"].shape)[scan].copy()
+    stagger = -200.0 + SLOPE_MM_PER_M * position
+    return seen_at(scan, scans, stagger, np.full(scan.shape, 5300.0), width, 4)
 
 
 def run_chain(
@@ -208,28 +223,10 @@ def test_a_wire_that_ended_is_given_out_before_the_run_ends():
 def messenger(scan: np.ndarray, scans: dict[str, np.ndarray]) -> WireObservations:
     """Rows of the same wire number that the processor could not decide are the contact wire:
     a messenger 1,200 mm above it, 300 mm aside, at another stagger gradient, 3 mm wide."""
-    from catenary.measurement.vehicle import track_to_roof
-
     position = scans["position_m"][scan]
-    x, z = track_to_roof(
-        100.0 - 40.0 * position,
-        np.full(scan.shape, 6500.0),
-        scans["left_mm"][scan],
-        scans["right_mm"][scan],
-        scans["lateral_mm"][scan],
-        GEOMETRY,
-    )
-    m = scan.shape[0]
-    return WireObservations(
-        scan=scan.astype(np.int64),
-        wire=np.zeros(m, np.int64),
-        x_roof_mm=x,
-        z_roof_mm=z,
-        wear_width_mm=np.full(m, 3.0),
-        cameras=np.full(m, 3, np.int64),
-        reprojection_rms_px=np.zeros(m),
-        selection_uncertain=np.ones(m, dtype=bool),
-    )
+    stagger = 100.0 - 40.0 * position
+    height = np.full(scan.shape, 6500.0)
+    return seen_at(scan, scans, stagger, height, np.full(scan.shape, 3.0), 3, uncertain=True)
 
 
 def together(a: WireObservations, b: WireObservations) -> WireObservations:
