@@ -61,7 +61,7 @@ from apscheduler.executors.pool import ThreadPoolExecutor
 from apscheduler.job import Job
 from apscheduler.jobstores.sqlalchemy import SQLAlchemyJobStore
 from apscheduler.schedulers.background import BackgroundScheduler
-from apscheduler.schedulers.base import BaseScheduler
+from apscheduler.schedulers.base import STATE_RUNNING, BaseScheduler
 from apscheduler.triggers.cron import CronTrigger
 from apscheduler.triggers.interval import IntervalTrigger
 from sqlalchemy import Engine
@@ -302,12 +302,16 @@ class LeasedScheduler(BackgroundScheduler):  # type: ignore[misc]
         if not self._holds():
             return self._recheck_s
         with self._processing:
+            if self.state != STATE_RUNNING:  # paused, or stopped by a shutdown under way
+                return None
             wait_s: float | None = super()._process_jobs()
         return wait_s
 
     def pause(self) -> None:
         """Pause, and return once a pass that was already looking for due jobs has submitted
-        them (else a shutdown right after could close the executor under it)."""
+        them (else a shutdown right after could close the executor under it). A pass that
+        starts later submits nothing: ``shutdown`` marks the scheduler stopped before it
+        closes the executor, and a pass looks at that under the same lock."""
         super().pause()
         with self._processing:
             pass
