@@ -87,7 +87,7 @@ from catenary.measurement.chain import MeasurementChain, TrackSamples
 from catenary.measurement.chainage import ChainageAlignment, TurningPointFinder, align_to_register
 from catenary.measurement.masts import read_register
 from catenary.measurement.runfile import RunFile, open_run
-from catenary.measurement.samples import SampleWriter, read_sample_batches
+from catenary.measurement.samples import SampleWriter, read_sample_batches, trusted
 from catenary.measurement.sensors import DEFAULT_FILTER_HZ, SensorSmoother
 from catenary.measurement.spans import SpanAccumulator, SpanLayout, SpanStatistics
 from catenary.measurement.vehicle import load_vehicle_geometry
@@ -493,7 +493,7 @@ def _finish(
                 "span": number,
             }
         )
-        usable = ~fault & ~unsure
+        usable = trusted(batch)
         usable &= np.isfinite(batch["height_mm"]) & np.isfinite(batch["stagger_mm"])
         outside += int(np.count_nonzero(index < 0))
         faulty += int(np.count_nonzero(fault))

@@ -68,8 +68,9 @@ __all__ = [
 ]
 
 UNCERTAIN_COLUMN = "selection_uncertain"
-"""Column of :class:`TrackedPoints` set where a lower wire's points lie beneath the point's
-track (step 4 of the module docstring)."""
+"""Column of :class:`TrackedPoints` set where the selection cannot tell that a point is the
+contact wire: a lower wire's points beneath its track, or its track alone in view after it
+was seen above another wire (step 4 of the module docstring)."""
 
 LOWER_WIRE_POINTS = 5
 """Fewest verified points beneath a track that show a lower wire there (``MIN_TRACK_POINTS``:
@@ -382,7 +383,7 @@ class WireTracker:
         # verified point released last
         self._last_released: dict[int, tuple[int, float, float, float]] = {}
         self._last_verified: dict[int, tuple[int, float, float, float]] = {}
-        # verified points released within max_gap_m (position, height, track): step 4
+        # verified points released within max_gap_m (their position, height and track): step 4
         self._behind = _Store.empty()
         self._released_m = -np.inf  # position of the last point released
         # per track, whether it was last seen above another wire (1) or level with one (-1)
@@ -504,7 +505,18 @@ class WireTracker:
             )
             track_of_fragment[f] = -1 if track is None else track.id
         track_id = track_of_fragment[fragment_of]
-        self._store.append(_Store(scan, position, x, z, track_id, verified, cols))
+        kept = track_id >= 0  # unverified chains that continued no track are dropped
+        self._store.append(
+            _Store(
+                scan[kept],
+                position[kept],
+                x[kept],
+                z[kept],
+                track_id[kept],
+                verified[kept],
+                {k: v[kept] for k, v in cols.items()},
+            )
+        )
         self._last_scan = max(self._last_scan, int(scan[-1]))
         self._last_m = max(self._last_m, float(position[-1]))
         self._merge_duplicates()
@@ -860,17 +872,10 @@ class WireTracker:
         beneath = np.zeros(released.scan.shape[0], dtype=bool)
         for track_id in np.unique(released.track[candidate]).tolist():  # one step per wire
             mine = candidate & (released.track == track_id)
-            own_m = np.concatenate(
-                [
-                    released.position_m[released.track == track_id],
-                    store.position_m[store.track == track_id],
-                ]
+            _, own_m, _, own_z = self._track_points(
+                released, released.track == track_id, store.track == track_id, None
             )
-            own_z = np.concatenate(
-                [released.z_mm[released.track == track_id], store.z_mm[store.track == track_id]]
-            )
-            at = np.argsort(own_m, kind="stable")
-            own_height = np.interp(position, own_m[at], own_z[at])
+            own_height = np.interp(position, own_m, own_z)  # in scan order
             lower = unconfirmed & (height < own_height - self.config.messenger_gap_mm)
             first = np.searchsorted(position, released.position_m[mine] - reach, side="left")
             last = np.searchsorted(position, released.position_m[mine] + reach, side="right")
@@ -1047,7 +1052,7 @@ class WireTracker:
                         float(released.x_mm[row]),
                         float(released.z_mm[row]),
                     )
-        # a closed track's height still counts up to max_gap_m beyond its end (_lowest_wire)
+        # a closed track's height still counts up to max_gap_m beyond its end (_above_a_wire)
         held = set(np.unique(self._store.track).tolist())
         if released.scan.shape[0]:
             self._released_m = float(released.position_m[-1])
