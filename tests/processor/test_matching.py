@@ -338,6 +338,43 @@ def test_a_wire_in_line_with_its_messenger(rig_cameras) -> None:
     assert not np.any(np.hypot(strict.x_mm - x_wire[0], strict.z_mm - z_wire[0]) < 1.0)
 
 
+def test_a_clamp_on_a_new_wire_gives_no_position(rig_cameras) -> None:
+    """White daylight, a new wire (no face): at a dropper clamp every camera sees the clamp's
+    dark silhouette, 22 mm wide and centred 5 mm above the wire's axis, and the silhouettes
+    agree on the clamp's middle. It is no wire's: those scans get no position, not a point
+    5 mm off (which they get when any width is taken for a wire's)."""
+    _names, cameras = rig_cameras
+    rng = np.random.default_rng(11)
+    n = 60
+    clamp = np.arange(n) % 20 == 7
+    x = np.full(n, 80.0)
+    z_axis = np.full(n, 1705.0)
+    z_seen = np.where(clamp, z_axis + 5.0, z_axis)
+    width_mm = np.where(clamp, 22.0, 10.8)
+    features = []
+    for camera in cameras:
+        u = camera.project(x, z_seen) + rng.normal(0, NOISE_PX, n)
+        _, du_dx, du_dz = _Geometry.of(camera).project(x, z_seen)
+        half = 0.5 * width_mm * np.hypot(du_dx, du_dz)
+        nan = np.full(n, np.nan)
+        features.append(
+            Features(
+                np.arange(n), u, u - half, u + half, nan, nan, np.full(n, 0.5), -np.ones(n, np.int8)
+            )
+        )
+    matches = verified(cameras, pad_candidates(features, n), sigma())
+    located = np.isfinite(matches.x_mm)
+    assert set(matches.scan[located]) == set(np.flatnonzero(~clamp))
+    on_wire = np.hypot(matches.x_mm[located] - 80.0, matches.z_mm[located] - 1705.0)
+    assert np.max(on_wire) < 0.5
+    assert np.all(matches.cameras[located] == 4)
+    anything = verified(
+        cameras, pad_candidates(features, n), sigma(), MatchConfig(max_wire_width_mm=30.0)
+    )
+    off = np.hypot(anything.x_mm - 80.0, anything.z_mm - 1705.0)[clamp[anything.scan]]
+    assert off.shape[0] == np.count_nonzero(clamp) and np.all(off > 4.0)
+
+
 def test_two_points_share_a_camera_s_detection(rig_cameras) -> None:
     """Two objects in line in one camera give it one detection; the point the four cameras
     confirm lends it to the one that has only that camera and two more."""

@@ -217,6 +217,9 @@ class LineScanProcessor:
             self.config.matching.feature_sigma_px,
         )
         self.features = self.config.features or self._feature_config()
+        self.matching = replace(
+            self.config.matching, max_wire_width_mm=self.config.wire_width_mm[1]
+        )
         self.tracker = WireTracker(self.config.tracking)
         self._next_scan = 0
         self._ratio_sum = np.zeros(len(self.names))
@@ -309,8 +312,8 @@ class LineScanProcessor:
                 )
             features.append(extract_features(lines.lines, lines.bit_depth, config=self.features))
         offsets = [block.cameras[name].offset_px for name in self.names]
-        candidates = pad_candidates(features, n, self.config.matching.max_candidates, offsets)
-        matches = match(self.cameras, candidates, self.sigma_px, self.config.matching)
+        candidates = pad_candidates(features, n, self.matching.max_candidates, offsets)
+        matches = match(self.cameras, candidates, self.sigma_px, self.matching)
         vehicle = block.vehicle
         roll = roll_rad(vehicle.left_mm, vehicle.right_mm, self.rig.vehicle.sensor_baseline_mm)
         roll = np.where(np.isfinite(roll), roll, 0.0)

@@ -39,6 +39,9 @@ class MatchConfig:
         Also return the points of two cameras made of detections left unused (unverified,
         ``Matches.verified`` false) where both saw a worn face, for tracking to take where
         they continue a wire.
+    max_wire_width_mm : float
+        The widest wire [mm]: a silhouette wider than that (a clamp on the wire, objects in
+        line) gives no axis (step 5).
     min_separation_mm : float
         Two points of one scan closer than this are one wire seen twice; the weaker goes
         (:func:`.pipeline._separate`). Wires are 11-15 mm thick: two closer than this touch.
@@ -56,6 +59,7 @@ class MatchConfig:
     support_merged: bool = True
     covering_pairs: bool = True
     two_view: bool = True
+    max_wire_width_mm: float = 14.8
     min_separation_mm: float = 30.0
 
     def cameras_needed(self, cameras: int) -> int:

@@ -14,7 +14,7 @@ from catenary_linescan.triangulation import triangulate
 
 from .candidates import Candidates
 from .config import MatchConfig
-from .geometry import _gather, _pinhole, _undistort
+from .geometry import _gather, _Geometry, _pinhole, _undistort
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,6 +84,57 @@ def _put(values: FloatArray, rows: NDArray[np.intp], new: FloatArray) -> FloatAr
     return out
 
 
+_SILHOUETTE_SLACK_PX = 1.5
+"""A bare wire's silhouette may read this much wider than the wire [px]: its two edges'
+noise and the blur's asymmetry on a round outline."""
+
+
+def _bare_silhouettes(
+    pinholes: Sequence[LineScanCamera],
+    left_px: FloatArray,
+    right_px: FloatArray,
+    x_mm: FloatArray,
+    z_mm: FloatArray,
+    max_width_mm: float,
+) -> BoolArray:
+    """Whether each camera's silhouette of the points is one a bare wire can make: no wider
+    than ``max_width_mm`` across the camera's ray at the point (the camera model's
+    resolution there) plus :data:`_SILHOUETTE_SLACK_PX`. A dropper or registration clamp on
+    the wire, or two objects in line, make it wider. ``(m, C)`` edges [px] and ``(m,)``
+    points [mm]; ``(m, C)``, false where a camera has no silhouette or the point is NaN."""
+    out = np.zeros(left_px.shape, dtype=bool)
+    for c, camera in enumerate(pinholes):  # a loop per camera, not per point
+        _, du_dx, du_dz = _Geometry.of(camera).project(x_mm, z_mm)
+        px_per_mm = np.hypot(du_dx, du_dz)  # across the ray: u is constant along it
+        with np.errstate(invalid="ignore"):
+            out[:, c] = right_px[:, c] - left_px[:, c] <= px_per_mm * max_width_mm + (
+                _SILHOUETTE_SLACK_PX
+            )
+    return out
+
+
+def _image_points(
+    cameras: Sequence[LineScanCamera],
+    left_px: FloatArray,
+    right_px: FloatArray,
+    face_left_px: FloatArray,
+    face_right_px: FloatArray,
+    config: MatchConfig,
+) -> tuple[BoolArray, FloatArray]:
+    """Whether each point is located by its face (two cameras at least saw it) and the ideal
+    image coordinate of each camera to triangulate: the face's midpoint (the contact point),
+    else the silhouette's middle (the axis; a camera's face centre lies a radius below it:
+    the two are never mixed). ``(m, C)`` edges [px] in; ``(m,)`` and ``(m, C)`` out, NaN where
+    a camera gives nothing."""
+    face_mid = 0.5 * (face_left_px + face_right_px)
+    from_face = (np.isfinite(face_mid).sum(axis=1) >= 2) & config.contact_from_faces
+    u = np.where(from_face[:, np.newaxis], face_mid, 0.5 * (left_px + right_px))
+    # on ideal coordinates, with the distortion-free twins of the cameras: the same least
+    # squares (the radial term changes the pixel scale by a part in a thousand at most)
+    ideal = np.stack([_undistort(camera, u[:, c]) for c, camera in enumerate(cameras)], 1)
+    return from_face, ideal
+
+
 def _triangulate_matches(
     cameras: Sequence[LineScanCamera],
     candidates: Candidates,
@@ -94,6 +145,10 @@ def _triangulate_matches(
     needed: int,
 ) -> Matches:
     """Step 5: each point from all its cameras (face midpoints where two saw the face).
+
+    A camera whose dark silhouette is wider than a wire can be (:func:`_bare_silhouettes`:
+    a clamp on the wire, objects in line) is left out; a point left with one camera has no
+    position (NaN).
 
     Where a point has a camera to spare, the camera whose image lies furthest outside its
     confirmation window from the point the other cameras give (leave-one-out) is dropped
@@ -109,18 +164,35 @@ def _triangulate_matches(
         candidates.face_left_px,
         candidates.face_right_px,
     )
-    face_mid = 0.5 * (face_left + face_right)
-    face_views = np.isfinite(face_mid).sum(axis=1)
-    from_face = (face_views >= 2) & config.contact_from_faces
-    # the contact point from the faces, else the axis from every camera's silhouette (a
-    # camera's face centre lies a radius below the axis: the two are never mixed)
-    u = np.where(from_face[:, np.newaxis], face_mid, 0.5 * (left + right))
     sigma = float(np.sqrt(np.mean(sigma_px**2))) if sigma_px.size else 0.1
-    # on ideal coordinates, with the distortion-free twins of the cameras: the same least
-    # squares (the radial term changes the pixel scale by a part in a thousand at most)
-    ideal = np.stack([_undistort(camera, u[:, c]) for c, camera in enumerate(cameras)], 1)
     pinholes = [_pinhole(camera) for camera in cameras]
+    from_face, ideal = _image_points(cameras, left, right, face_left, face_right, config)
     result = triangulate(pinholes, ideal, sigma_px=sigma)
+    # a dark silhouette (against a bright sky: the wire's outline) wider than a wire can be
+    # is a clamp on the wire or objects in line: its middle is not the wire's, nor are the
+    # edges inside it a worn face's (a lit wire's extent is not its outline: not judged)
+    (polarity,) = _gather(scan, slot, candidates.polarity.astype(np.float64))
+    wide = (polarity < 0) & ~_bare_silhouettes(
+        pinholes, left, right, result.x_mm, result.z_mm, config.max_wire_width_mm
+    )
+    rows = np.flatnonzero(wide.any(axis=1))
+    if rows.shape[0]:
+        slot = np.where(wide, -1, slot)
+        left, right, face_left, face_right = (
+            np.where(wide, np.nan, v)[rows] for v in (left, right, face_left, face_right)
+        )
+        from_face[rows], ideal[rows] = _image_points(
+            cameras, left, right, face_left, face_right, config
+        )
+        again = triangulate(pinholes, ideal[rows], sigma_px=sigma)
+        result = replace(
+            result,
+            x_mm=_put(result.x_mm, rows, again.x_mm),
+            z_mm=_put(result.z_mm, rows, again.z_mm),
+            rms_reprojection_px=_put(result.rms_reprojection_px, rows, again.rms_reprojection_px),
+            sigma_x_mm=_put(result.sigma_x_mm, rows, again.sigma_x_mm),
+            sigma_z_mm=_put(result.sigma_z_mm, rows, again.sigma_z_mm),
+        )
     window = np.maximum(config.confirm_sigmas * sigma_px, config.floor_px)[np.newaxis, :]
     # leave-one-out, linearised: camera i's residual at the point the others give is
     # r_i / (1 - h_i), h_i = j_iᵀ (JᵀJ)⁻¹ j_i its leverage (j_i its row of the Jacobian)
