@@ -296,6 +296,10 @@ def measure(
         vehicle = sim.processed_vehicle_at(chunk.time_s, filter_hz)
         for name in ("left_mm", "right_mm", "lateral_mm"):
             got.add_truth("sensor_" + name, getattr(vehicle, name))
+        # the car body's true pose: the processor's own error, the sensors' noise apart
+        exact = sim.motion.pose(chunk.time_s).sensors(sim.rig.vehicle.sensor_baseline_mm)
+        for name, values in zip(("left_mm", "right_mm", "lateral_mm"), exact, strict=True):
+            got.add_truth("pose_" + name, values)
     t0 = time.perf_counter()
     got.add_rows(processor.finish())
     processing += time.perf_counter() - t0
@@ -358,6 +362,8 @@ def evaluate(
     # the pipeline: track frame, stagger angle, corrected width, residual thickness
     left, right, lateral = (t["sensor_" + k][scan] for k in ("left_mm", "right_mm", "lateral_mm"))
     stagger, height = roof_to_track(x, z, left, right, lateral, rig.vehicle)
+    pose = (t["pose_" + k][scan] for k in ("left_mm", "right_mm", "lateral_mm"))
+    own_stagger, own_height = roof_to_track(x, z, *pose, rig.vehicle)
     position = t["position_m"][scan]
     stream = np.where(uncertain, -1 - wire, wire)  # uncertain rows apart, as the chain does
     theta = stagger_angle_by_wire_rad(stream, position, stagger)
@@ -373,6 +379,8 @@ def evaluate(
     width_error = w0[rows] - t["wear_width_mm"][s, j]
     height_error = height[rows] - t["height_mm"][s, j]
     stagger_error = stagger[rows] - t["stagger_mm"][s, j]
+    own_height_error = own_height[rows] - t["height_mm"][s, j]
+    own_stagger_error = own_stagger[rows] - t["stagger_mm"][s, j]
     key = scan * 1000 + wire
     duplicates = int(key.shape[0] - np.unique(key).shape[0])
     return {
@@ -387,6 +395,8 @@ def evaluate(
         "width": _stats(width_error),
         "height": _stats(height_error),
         "stagger": _stats(stagger_error),
+        "own_height": _stats(own_height_error),
+        "own_stagger": _stats(own_stagger_error),
         "max_wear_mm": float(np.nanmax(t["wear_width_mm"][s, j])) if rows.size else math.nan,
         "no_width": int(np.count_nonzero(~np.isfinite(width[rows]))),
         "screened": int(np.count_nonzero(np.isfinite(corrected[rows]) & ~np.isfinite(w0[rows]))),
