@@ -13,7 +13,7 @@ from catenary_linescan.calibration import ResolutionTable
 from catenary_linescan.camera import LineScanCamera
 
 from .candidates import Candidates
-from .geometry import _gather, _Geometry, _line_coefficients, _undistort
+from .geometry import _gather, _Geometry, _line_coefficients, _row_median, _undistort
 from .triangulate import Matches
 
 
@@ -195,13 +195,3 @@ def lit_chord_mm(
             per_camera[:, c] = (right[:, c] - left[:, c]) / along
     chord[rows] = _row_median(per_camera)
     return chord
-
-
-def _row_median(values: FloatArray) -> FloatArray:
-    """Median of the finite values of each row of a narrow ``(m, C)`` array (NaN if none)."""
-    ordered = np.sort(np.where(np.isfinite(values), values, np.inf), axis=1)
-    count = np.isfinite(values).sum(axis=1)
-    low = np.take_along_axis(ordered, np.maximum((count - 1) // 2, 0)[:, np.newaxis], 1)[:, 0]
-    high = np.take_along_axis(ordered, np.maximum(count // 2, 0)[:, np.newaxis], 1)[:, 0]
-    with np.errstate(invalid="ignore"):
-        return np.where(count > 0, 0.5 * (low + high), np.nan)

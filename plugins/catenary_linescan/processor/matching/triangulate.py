@@ -14,7 +14,7 @@ from catenary_linescan.triangulation import triangulate
 
 from .candidates import Candidates
 from .config import MatchConfig
-from .geometry import _gather, _Geometry, _pinhole, _undistort
+from .geometry import _gather, _Geometry, _pinhole, _row_median, _undistort
 
 
 @dataclass(frozen=True, eq=False)
@@ -87,6 +87,8 @@ def _put(values: FloatArray, rows: NDArray[np.intp], new: FloatArray) -> FloatAr
 _SILHOUETTE_SLACK_PX = 1.5
 """A bare wire's silhouette may read this much wider than the wire [px]: its two edges'
 noise and the blur's asymmetry on a round outline."""
+_PROFILE_SPREAD = 0.05
+"""A grooved wire's silhouette differs by up to this fraction of its width between views."""
 
 
 def _bare_silhouettes(
@@ -97,20 +99,24 @@ def _bare_silhouettes(
     z_mm: FloatArray,
     max_width_mm: float,
 ) -> BoolArray:
-    """Whether each camera's silhouette of the points is one a bare wire can make: no wider
-    than ``max_width_mm`` across the camera's ray at the point (the camera model's
-    resolution there) plus :data:`_SILHOUETTE_SLACK_PX`. A dropper or registration clamp on
-    the wire, or two objects in line, make it wider. ``(m, C)`` edges [px] and ``(m,)``
-    points [mm]; ``(m, C)``, false where a camera has no silhouette or the point is NaN."""
-    out = np.zeros(left_px.shape, dtype=bool)
+    """Whether each camera's dark silhouette of the points is one a bare wire can make.
+
+    Its width across the camera's ray at the point (the camera model's resolution there)
+    must be no more than ``max_width_mm``, nor than the median of the point's silhouettes
+    (the wire's own width: objects in line only widen a dark silhouette) by more than
+    :data:`_PROFILE_SPREAD`, each give or take :data:`_SILHOUETTE_SLACK_PX`. A dropper or
+    registration clamp on the wire, or a messenger or a crossing wire in line with it, make
+    it wider. ``(m, C)`` edges [px] (NaN: no dark silhouette) and ``(m,)`` points [mm];
+    ``(m, C)``, false where a camera has no silhouette or the point is NaN."""
+    px_per_mm = np.empty(left_px.shape)
     for c, camera in enumerate(pinholes):  # a loop per camera, not per point
         _, du_dx, du_dz = _Geometry.of(camera).project(x_mm, z_mm)
-        px_per_mm = np.hypot(du_dx, du_dz)  # across the ray: u is constant along it
-        with np.errstate(invalid="ignore"):
-            out[:, c] = right_px[:, c] - left_px[:, c] <= px_per_mm * max_width_mm + (
-                _SILHOUETTE_SLACK_PX
-            )
-    return out
+        px_per_mm[:, c] = np.hypot(du_dx, du_dz)  # across the ray: u is constant along it
+    with np.errstate(invalid="ignore", divide="ignore"):
+        width_mm = (right_px - left_px) / px_per_mm
+        own_mm = (1.0 + _PROFILE_SPREAD) * _row_median(width_mm)
+        limit_mm = np.fmin(own_mm, max_width_mm)[:, np.newaxis]
+        return width_mm <= limit_mm + _SILHOUETTE_SLACK_PX / px_per_mm
 
 
 def _image_points(
@@ -172,8 +178,14 @@ def _triangulate_matches(
     # is a clamp on the wire or objects in line: its middle is not the wire's, nor are the
     # edges inside it a worn face's (a lit wire's extent is not its outline: not judged)
     (polarity,) = _gather(scan, slot, candidates.polarity.astype(np.float64))
-    wide = (polarity < 0) & ~_bare_silhouettes(
-        pinholes, left, right, result.x_mm, result.z_mm, config.max_wire_width_mm
+    dark = polarity < 0
+    wide = dark & ~_bare_silhouettes(
+        pinholes,
+        np.where(dark, left, np.nan),
+        np.where(dark, right, np.nan),
+        result.x_mm,
+        result.z_mm,
+        config.max_wire_width_mm,
     )
     rows = np.flatnonzero(wide.any(axis=1))
     if rows.shape[0]:
