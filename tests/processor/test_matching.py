@@ -338,6 +338,55 @@ def test_a_wire_in_line_with_its_messenger(rig_cameras) -> None:
     assert not np.any(np.hypot(strict.x_mm - x_wire[0], strict.z_mm - z_wire[0]) < 1.0)
 
 
+def test_a_wire_nearly_in_line_with_its_messenger_keeps_its_other_cameras(rig_cameras) -> None:
+    """In camera 2 a contact wire and its messenger fall under 1 px apart: one detection, whose
+    centre confirms both points. The point that takes it leaves the other three cameras,
+    enough for the other point: both are found, each located by the cameras that see it
+    alone."""
+    _names, cameras = rig_cameras
+    rng = np.random.default_rng(13)
+    n = 50
+    x_wire, z_wire = np.full(n, -60.0), np.full(n, 1650.0)
+    centre = cameras[2].centre_mm
+    direction = np.array([x_wire[0] - centre[0], z_wire[0] - centre[1]])
+    direction /= np.hypot(*direction)
+    x_mess = np.full(n, x_wire[0] + direction[0] * 1100.0 / direction[1] + 0.4)
+    z_mess = np.full(n, 2750.0)
+    features = []
+    s = np.arange(n)
+    for c, camera in enumerate(cameras):
+        u_w = camera.project(x_wire, z_wire) + rng.normal(0, NOISE_PX, n)
+        u_m = camera.project(x_mess, z_mess) + rng.normal(0, NOISE_PX, n)
+        if c == 2:
+            assert np.all(np.abs(u_w - u_m) < 0.9)
+            u = 0.5 * (u_w + u_m)
+            nan = np.full(n, np.nan)
+            table = Features(s, u, u - 12, u + 12, nan, nan, np.full(n, 0.5), -np.ones(n, np.int8))
+        else:
+            both = np.concatenate([u_w, u_m])
+            ss = np.concatenate([s, s])
+            order = np.lexsort((both, ss))
+            nan = np.full(2 * n, np.nan)
+            table = Features(
+                ss[order],
+                both[order],
+                both[order] - 10,
+                both[order] + 10,
+                nan,
+                nan,
+                np.full(2 * n, 0.4),
+                -np.ones(2 * n, np.int8),
+            )
+        features.append(table)
+    matches = verified(cameras, pad_candidates(features, n), sigma())
+    near_wire = np.hypot(matches.x_mm - x_wire[0], matches.z_mm - z_wire[0]) < 1.0
+    near_mess = np.hypot(matches.x_mm - x_mess[0], matches.z_mm - z_mess[0]) < 3.0
+    assert np.count_nonzero(near_wire) == n and np.count_nonzero(near_mess) == n
+    assert matches.count == 2 * n
+    # camera 2's silhouette, wider than the wire's in the others, locates neither
+    assert np.all(matches.slot[:, 2] == -1) and np.all(matches.cameras >= 3)
+
+
 def test_a_clamp_on_a_new_wire_gives_no_position(rig_cameras) -> None:
     """White daylight, a new wire (no face): at a dropper clamp every camera sees the clamp's
     dark silhouette, 22 mm wide and centred 5 mm above the wire's axis, and the silhouettes

@@ -24,8 +24,9 @@ over the scans of a block:
    Candidates of opposite polarity (bright on dark against dark on bright) never match.
 4. **Resolve** conflicts so that each detection is used once (:func:`.resolve._resolve`): greedy by
    score (cameras confirming first, then the normalised residual), vectorised across the
-   scans of the block in rounds; then a detection may be lent by a point with a camera to
-   spare to one that needs it (two objects in line in one camera), and a merged silhouette
+   scans of the block in rounds; then a point that shared a detection keeps the others when
+   they are enough, or a detection may be lent by a point with a camera to spare to one that
+   needs it (two objects in line in one camera), and a merged silhouette
    (several objects in line, its centre and face belonging to none) supports the points whose
    images it holds. A point needs ``min_cameras`` cameras: 3 by default with three or more
    cameras (two views always intersect, so only a third verifies), which keeps a 4-camera rig

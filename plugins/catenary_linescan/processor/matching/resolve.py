@@ -32,13 +32,14 @@ def _resolve(
        then smaller mean squared normalised residual); each round accepts the first live
        hypothesis of every scan confirmed by ``needed`` cameras and kills those that share a
        detection with it.
-    2. *Lending* (:func:`_lend`): a killed hypothesis is accepted still when the detections
-       left free give it ``needed - 1`` cameras and one more can be taken from an accepted
-       point that has a camera to spare (more than ``needed``): two objects in line in one
-       camera (a contact wire below its messenger) share its single detection. Only a
-       hypothesis whose confirmations fit within one standard deviation on average may
-       borrow, one detection at most, so points of leftovers and a coincidence (ghosts)
-       rarely gain; the few that do last a scan, and tracking drops them.
+    2. *Lending* (:func:`_lend`): two objects in line in one camera (a contact wire below
+       its messenger) share its single detection. A killed hypothesis is accepted still
+       with the detections left free when they give it ``needed`` cameras, or when they
+       give it ``needed - 1`` and one more can be taken from an accepted point that has a
+       camera to spare (more than ``needed``). Only a hypothesis whose confirmations fit
+       within one standard deviation on average may borrow, one detection at most, so
+       points of leftovers and a coincidence (ghosts) rarely gain; the few that do last a
+       scan, and tracking drops them.
     3. *Merged silhouettes* (:func:`_merged_silhouettes`): a detection no accepted point
        uses, whose silhouette holds the image of an accepted point, images several objects
        in line (its centre and face belong to none of them). It supports every hypothesis
@@ -187,17 +188,20 @@ def _greedy(ranked: _Ranked, ledger: _Ledger, needed: int) -> None:
 
 
 def _lend(ranked: _Ranked, ledger: _Ledger, may_borrow: NDArray[np.bool_], needed: int) -> None:
-    """Step 4.2: a hypothesis left out that ``may_borrow`` ``(h,)`` is accepted with the
-    detections left free and one detection lent by an accepted point with a camera to
-    spare, in rounds, the first of every scan in each."""
-    live = np.flatnonzero(~ledger.taken & may_borrow & (ranked.count >= needed))
+    """Step 4.2: a hypothesis left out is accepted with the detections left free when they
+    are ``needed`` (the detection it shared was one of several it had to spare), or, if it
+    ``may_borrow`` ``(h,)``, with them and one detection lent by an accepted point with a
+    camera to spare; in rounds, the first of every scan in each."""
+    live = np.flatnonzero(~ledger.taken & (ranked.count >= needed))
     while live.shape[0] and ledger.rows:
         cameras_of = (np.concatenate(ledger.slots) >= 0).sum(axis=1)
         own = ledger.owners(ranked, live)
         has = ranked.has[live]
         free = has & (own < 0)
+        alone = free.sum(axis=1) >= needed
         lendable = has & (own >= 0) & (cameras_of[np.maximum(own, 0)] > needed)
-        eligible = (free.sum(axis=1) + 1 == needed) & lendable.any(axis=1)
+        lendable &= (may_borrow[live] & ~alone)[:, np.newaxis]
+        eligible = alone | ((free.sum(axis=1) + 1 == needed) & lendable.any(axis=1))
         live, free, lendable, own = (v[eligible] for v in (live, free, lendable, own))
         if not live.shape[0]:
             break
