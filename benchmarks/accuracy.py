@@ -225,6 +225,7 @@ class Collected:
     cameras: list[np.ndarray] = field(default_factory=list)
     uncertain: list[np.ndarray] = field(default_factory=list)
     truth: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    first_scan: int = 0  # the scan of the truth's first row
 
     def add_rows(self, observations: Any) -> None:
         self.scan.append(observations.scan)
@@ -267,17 +268,28 @@ def run_case(
 
 
 def measure(
-    sim: Simulation, rig: Rig, screen: bool = True, *, filter_hz: float = DEFAULT_FILTER_HZ
+    sim: Simulation,
+    rig: Rig,
+    screen: bool = True,
+    *,
+    filter_hz: float = DEFAULT_FILTER_HZ,
+    scans: tuple[int, int] | None = None,
 ) -> dict[str, Any]:
     """Process a simulated run with the calibrated ``rig`` and score it (:func:`evaluate`);
     adds ``scans``, ``seconds`` (simulation and processing), ``processing_s`` and the
-    processor's ``table_check``."""
+    processor's ``table_check``. ``scans`` ``(first, stop)``: only the chunks that hold
+    those scans (a stretch of the run, as a regression test cuts it)."""
     processor = LineScanProcessor(rig)
     got = Collected()
     bit_depth = {c.name: c.bit_depth for c in sim.rig.cameras}
     started = time.perf_counter()
     processing = 0.0
-    for chunk in sim.chunks():
+    first_chunk, stop_chunk = 0, sim.chunk_count
+    if scans is not None:
+        first_chunk = scans[0] // sim.chunk_scans
+        stop_chunk = min(-(-scans[1] // sim.chunk_scans), sim.chunk_count)
+    got.first_scan = first_chunk * sim.chunk_scans
+    for chunk in map(sim.chunk, range(first_chunk, stop_chunk)):
         block = ScanBlock(
             first_scan=chunk.first_scan,
             position_m=chunk.position_m,
@@ -307,7 +319,7 @@ def measure(
     wire_type = {p.name: p for p in load_profiles()}[sim.scene.wire_type.name]
     result = evaluate(got, contact, wire_type, rig, screen)
     result.update(
-        scans=sim.scans,
+        scans=sum(p.shape[0] for p in got.truth["position_m"]),
         seconds=time.perf_counter() - started,
         processing_s=processing,
         table_check=processor.table_check,
@@ -327,7 +339,7 @@ def evaluate(
     got: Collected, contact: np.ndarray, wire_type: Any, rig: Rig, screen: bool = True
 ) -> dict[str, Any]:
     t = {k: np.concatenate(v) for k, v in got.truth.items()}
-    scan = np.concatenate(got.scan)
+    scan = np.concatenate(got.scan) - got.first_scan
     wire = np.concatenate(got.wire)
     x = np.concatenate(got.x)
     z = np.concatenate(got.z)

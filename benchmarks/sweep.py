@@ -224,8 +224,10 @@ def draw(seed: int, scene: int, length_m: tuple[float, float] = (150.0, 300.0)) 
     )
 
 
-def run_scenario(scenario: Scenario) -> dict[str, Any]:
-    """Calibrate the scene's rig from its captures, run and score it: one table row."""
+def run_scenario(scenario: Scenario, scans: tuple[int, int] | None = None) -> dict[str, Any]:
+    """Calibrate the scene's rig from its captures, run and score it: one table row.
+    ``scans`` ``(first, stop)``: only the stretch of the run that holds them
+    (:func:`accuracy.measure`)."""
     row: dict[str, Any] = {
         k: v for k, v in asdict(scenario).items() if k not in ("glare_span", "blind_camera")
     }
@@ -240,7 +242,7 @@ def run_scenario(scenario: Scenario) -> dict[str, Any]:
         with tempfile.TemporaryDirectory() as tmp:
             rig = calibrated_rig(Path(tmp), settings["rig"])
         calibration_s = time.perf_counter() - started
-        result = measure(build_simulation(settings, scenario.scene_params()), rig)
+        result = measure(build_simulation(settings, scenario.scene_params()), rig, scans=scans)
     except Exception:
         row.update(error=traceback.format_exc(limit=3).strip().splitlines()[-1])
         row.update(seconds=round(time.perf_counter() - started, 1))
@@ -405,7 +407,16 @@ def main(argv: list[str] | None = None) -> int:
         metavar=("LOW", "HIGH"),
         help="section lengths drawn (150 300)",
     )
+    parser.add_argument(
+        "--scans",
+        type=int,
+        nargs=2,
+        metavar=("FIRST", "STOP"),
+        help="with --scene: only the stretch of the run that holds these scans",
+    )
     args = parser.parse_args(argv)
+    if args.scans is not None and args.scene is None:
+        parser.error("--scans needs --scene")
     numbers = [args.scene] if args.scene is not None else list(range(args.scenes))
     scenarios = [draw(args.seed, k, tuple(args.length_m)) for k in numbers]
     print(
@@ -424,7 +435,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(row_line(row), file=sys.stderr, flush=True)
     else:
         for scenario in scenarios:
-            rows.append(run_scenario(scenario))
+            rows.append(run_scenario(scenario, args.scans))
             print(row_line(rows[-1]), file=sys.stderr, flush=True)
     elapsed = time.perf_counter() - started
     if args.out:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import csv
 import math
-import sys
 from dataclasses import replace
 from pathlib import Path
 from types import ModuleType
@@ -13,18 +12,6 @@ from types import ModuleType
 import pytest
 
 from catenary_wiretypes import load_profiles
-
-BENCHMARKS = Path(__file__).resolve().parents[2] / "benchmarks"
-
-
-@pytest.fixture(scope="module")
-def sweep() -> ModuleType:
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        import sweep as module
-    finally:
-        sys.path.remove(str(BENCHMARKS))
-    return module
 
 
 def test_the_draw_covers_the_space_and_repeats(sweep: ModuleType) -> None:

@@ -1,0 +1,31 @@
+"""Sweep scenes that failed a target, cut to the stretch that failed: each must now meet
+every target there (issue 14: a failing scene keeps its seed and becomes a regression test).
+
+Rerun one by hand with ``benchmarks/sweep.py --seed S --scene K --scans FIRST STOP``.
+"""
+
+from __future__ import annotations
+
+from types import ModuleType
+
+import pytest
+
+FIXED = [
+    # white daylight, new wire, five 8k cameras: its messenger in line with it in one camera
+    # merged the two silhouettes, which moved the wire's axis 2-3 mm and, taken by the
+    # messenger, lost the wire for 45-53 scans at a time (worst height 13.8 mm, recall 97 %)
+    pytest.param(0, 17, (3000, 3800), id="messenger-in-line"),
+    # white daylight, new wire, six 8k cameras: a dropper clamp's silhouette located the
+    # wire 4.5-11.6 mm too high
+    pytest.param(0, 5, (2600, 3400), id="dropper-clamp"),
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("seed", "scene", "scans"), FIXED)
+def test_a_stretch_that_failed_meets_every_target(
+    sweep: ModuleType, seed: int, scene: int, scans: tuple[int, int]
+) -> None:
+    row = sweep.run_scenario(sweep.draw(seed, scene), scans)
+    assert row["error"] == ""
+    assert row["fails"] == "", sweep.row_line(row)
