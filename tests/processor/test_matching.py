@@ -387,6 +387,52 @@ def test_a_wire_nearly_in_line_with_its_messenger_keeps_its_other_cameras(rig_ca
     assert np.all(matches.slot[:, 2] == -1) and np.all(matches.cameras >= 3)
 
 
+def test_two_cameras_pair_what_agrees(rig_cameras) -> None:
+    """A rig of two cameras sees a worn contact wire (a face, 11 mm wide) and its messenger
+    (no face, 14 mm) 1100 mm above: the four pairings of their images all intersect. The
+    wire and the messenger are the ones whose silhouettes agree in width and whose faces
+    match, not the ghosts that pair one camera's wire with the other's messenger."""
+    _names, all_cameras = rig_cameras
+    cameras = [all_cameras[0], all_cameras[3]]
+    rng = np.random.default_rng(17)
+    n = 40
+    wires = [(-40.0, 1600.0, 11.0, 7.0), (-42.0, 2700.0, 14.0, None)]  # x, z, width, face
+    features = []
+    s = np.arange(n)
+    for camera in cameras:
+        columns: list[list[np.ndarray]] = [[] for _ in range(6)]
+        for x, z, width, face in wires:
+            xs, zs = np.full(n, x), np.full(n, z)
+            u = camera.project(xs, zs) + rng.normal(0, NOISE_PX, n)
+            _, du_dx, du_dz = _Geometry.of(camera).project(xs, zs)
+            half = 0.5 * width * np.hypot(du_dx, du_dz)
+            face_half = np.full(n, np.nan) if face is None else 0.5 * face * np.abs(du_dx)
+            for column, value in zip(
+                columns, (s, u, u - half, u + half, u - face_half, u + face_half), strict=True
+            ):
+                column.append(value)
+        ss, u, lo, hi, fl, fr = (np.concatenate(c) for c in columns)
+        order = np.lexsort((u, ss))
+        features.append(
+            Features(
+                ss[order],
+                u[order],
+                lo[order],
+                hi[order],
+                fl[order],
+                fr[order],
+                np.full(2 * n, 0.4),
+                np.ones(2 * n, np.int8),
+            )
+        )
+    matches = verified(cameras, pad_candidates(features, n), sigma(2))
+    assert matches.count == 2 * n
+    on_wire = np.hypot(matches.x_mm - (-40.0), matches.z_mm - 1600.0) < 1.0
+    # the messenger is located by its silhouettes' middles: its axis
+    on_messenger = np.hypot(matches.x_mm - (-42.0), matches.z_mm - 2700.0) < 8.0
+    assert np.count_nonzero(on_wire) == n and np.count_nonzero(on_messenger) == n
+
+
 def test_a_clamp_on_a_new_wire_gives_no_position(rig_cameras) -> None:
     """White daylight, a new wire (no face): at a dropper clamp every camera sees the clamp's
     dark silhouette, 22 mm wide and centred 5 mm above the wire's axis, and the silhouettes

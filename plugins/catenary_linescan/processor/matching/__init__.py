@@ -30,7 +30,10 @@ over the scans of a block:
    (several objects in line, its centre and face belonging to none) supports the points whose
    images it holds. A point needs ``min_cameras`` cameras: 3 by default with three or more
    cameras (two views always intersect, so only a third verifies), which keeps a 4-camera rig
-   working with one camera blinded by the sun or missing a wire.
+   working with one camera blinded by the sun or missing a wire. Where two cameras are
+   needed (a rig of two), nothing verifies a point: the pairings of a scan's detections are
+   ranked by how well their two images agree (the silhouettes' widths across the rays at
+   the point, a worn face in both or in neither).
 5. **Triangulate** each accepted point from all the cameras that confirmed it (least squares
    on the rays, then Gauss-Newton on the reprojection error:
    :func:`catenary_linescan.triangulation.triangulate`), from the worn face's midpoints where

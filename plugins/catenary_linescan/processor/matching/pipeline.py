@@ -12,13 +12,14 @@ from numpy.typing import NDArray
 
 from catenary.arrays import FloatArray, IntArray
 from catenary_linescan.camera import LineScanCamera
+from catenary_linescan.triangulation import triangulate
 
 from .candidates import Candidates
 from .config import MatchConfig
-from .geometry import _Geometry, _undistort
+from .geometry import _gather, _Geometry, _pinhole, _undistort
 from .hypotheses import _covering_pairs, _enumerate, _Hypotheses
 from .resolve import _resolve
-from .triangulate import Matches, _triangulate_matches
+from .triangulate import _PROFILE_SPREAD, Matches, _image_points, _triangulate_matches
 
 
 def match(
@@ -67,6 +68,8 @@ def match(
     hypotheses = _enumerate(
         geometry, u, (left, right), polarity, sigma_px, config, span, needed, pairs
     )
+    if needed == 2:
+        hypotheses = _two_view_agreement(cameras, candidates, hypotheses, sigma_px, config)
 
     def more(scans: IntArray, used: NDArray[np.bool_]) -> _Hypotheses:
         """Hypotheses of the other pairs from the unused detections of some scans."""
@@ -138,6 +141,66 @@ def match(
         }
     )
     return _separate(merged.take(np.argsort(merged.scan, kind="stable")), config.min_separation_mm)
+
+
+_FACE_MISMATCH = 9.0
+"""Added to the squared normalised residual of a two-camera point where one camera sees a
+worn face and the other none: a face shows to every camera below the wire (three standard
+deviations)."""
+
+
+def _two_view_agreement(
+    cameras: Sequence[LineScanCamera],
+    candidates: Candidates,
+    hypotheses: _Hypotheses,
+    sigma_px: FloatArray,
+    config: MatchConfig,
+) -> _Hypotheses:
+    """Where two cameras are enough (a rig of two), score how well the two images of each
+    hypothesis of two agree on what they see, in place of the third camera's residual: two
+    rays always meet, and a scan's detections pair up in several ways that all intersect.
+
+    ``chi2`` gains the squared difference of the two silhouettes' widths across the rays at
+    the point [mm] over its standard deviation (each edge's ``sigma_px``, and
+    :data:`.triangulate._PROFILE_SPREAD` of the width for a grooved profile seen from two
+    sides), and :data:`_FACE_MISMATCH` where one camera sees a face and the other none. The
+    wire and its messenger are the pairing whose widths agree and whose faces match; the
+    ghosts of one camera's wire with the other's messenger are not."""
+    two = np.flatnonzero(hypotheses.count == 2)
+    if not two.shape[0]:
+        return hypotheses
+    scan, slot = hypotheses.scan[two], hypotheses.slot[two]
+    left, right, face_left, face_right = _gather(
+        scan,
+        slot,
+        candidates.left_px,
+        candidates.right_px,
+        candidates.face_left_px,
+        candidates.face_right_px,
+    )
+    pinholes = [_pinhole(camera) for camera in cameras]
+    _, ideal = _image_points(cameras, left, right, face_left, face_right, config)
+    point = triangulate(pinholes, ideal)
+    width_mm = np.full(left.shape, np.nan)
+    sigma_mm = np.full(left.shape, np.nan)
+    for c, camera in enumerate(pinholes):  # a loop per camera, not per point
+        _, du_dx, du_dz = _Geometry.of(camera).project(point.x_mm, point.z_mm)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            px_per_mm = np.hypot(du_dx, du_dz)
+            width_mm[:, c] = (right[:, c] - left[:, c]) / px_per_mm
+            sigma_mm[:, c] = np.sqrt(2.0) * sigma_px[c] / px_per_mm
+    seen = np.isfinite(width_mm)
+    width = np.where(seen, width_mm, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        difference = width.max(axis=1) - width.min(axis=1)
+        variance = np.where(seen, sigma_mm, 0.0) ** 2
+        variance = variance.sum(axis=1) + (_PROFILE_SPREAD * width.max(axis=1)) ** 2
+        added = np.where(seen.sum(axis=1) == 2, difference**2 / variance, 0.0)
+    faces = (np.isfinite(face_left) & np.isfinite(face_right) & seen).sum(axis=1)
+    added += np.where((faces == 1) & (seen.sum(axis=1) == 2), _FACE_MISMATCH, 0.0)
+    chi2 = hypotheses.chi2.copy()
+    chi2[two] += np.nan_to_num(added, nan=_FACE_MISMATCH)
+    return replace(hypotheses, chi2=chi2)
 
 
 def _separate(matches: Matches, min_separation_mm: float) -> Matches:
