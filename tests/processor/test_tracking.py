@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from catenary_linescan.processor.tracking import (
+    CROSSING_MM,
     MIN_TRACK_M,
     RESTING_ACROSS_MM,
     RESTING_MM,
@@ -99,9 +100,11 @@ def run(
     return scan, wire, truth, x_out, held, uncertain
 
 
-def overlap_stream(seed: int = 0) -> tuple[Stream, np.ndarray, np.ndarray]:
+def overlap_stream(seed: int = 0) -> tuple[Stream, np.ndarray, np.ndarray, np.ndarray]:
     """A 400 m run: wire A all along, wire B over 120-300 m, coming down from 350 mm above A
-    and going back up (an overlap), crossing A in plan; messengers, droppers and clamps."""
+    and going back up (an overlap), crossing A in plan; messengers, droppers and clamps.
+    Returns the stream and the scans where B runs clear of A, where it is raised, and where
+    it crosses A at its height."""
     stream = Stream(24_000, seed)
     p = stream.position
     xa = zigzag(p)
@@ -133,15 +136,18 @@ def overlap_stream(seed: int = 0) -> tuple[Stream, np.ndarray, np.ndarray]:
     across = np.abs(xb - xa)
     running = (lift < gap - 3.0) & ((across > RESTING_ACROSS_MM + 3.0) | (lift < RESTING_MM - 3.0))
     raised = (lift > gap + 3.0) | ((across < RESTING_ACROSS_MM - 3.0) & (lift > RESTING_MM + 3.0))
-    return stream, in_b & running, in_b & raised
+    # where B crosses A in plan at A's height, both rows are uncertain (one image of both)
+    crossing = in_b & (across < CROSSING_MM + 3.0) & (lift < RESTING_MM + 3.0)
+    return stream, in_b & running & ~crossing, in_b & raised, crossing
 
 
 @pytest.mark.parametrize("block", [1024, 333])
 def test_overlap_stable_numbers_no_false_wire(block: int) -> None:
-    stream, b_contact, b_raised = overlap_stream()
-    scan, wire, truth, _, held, _ = run(stream, block)
-    # only contact wire points come out
+    stream, b_contact, b_raised, crossing = overlap_stream()
+    scan, wire, truth, _, held, uncertain = run(stream, block, uncertain_rows=True)
+    # only contact wire points come out; uncertain only where B crosses A
     assert set(np.unique(truth).tolist()) == {0, 1}
+    assert np.any(uncertain) and np.all(crossing[scan[uncertain]])
     # one wire number per contact wire, through the crossing and the blocks
     assert np.unique(wire[truth == 0]).tolist() == [0]
     assert np.unique(wire[truth == 1]).tolist() == [1]
@@ -160,9 +166,9 @@ def test_overlap_stable_numbers_no_false_wire(block: int) -> None:
 
 
 def test_results_do_not_depend_on_the_block_size() -> None:
-    stream, _, _ = overlap_stream(seed=4)
-    a = run(stream, 4096)
-    b = run(stream, 97)
+    stream, _, _, _ = overlap_stream(seed=4)
+    a = run(stream, 4096, uncertain_rows=True)
+    b = run(stream, 97, uncertain_rows=True)
     for left, right in zip(a[:4] + a[5:], b[:4] + b[5:], strict=True):
         np.testing.assert_array_equal(left, right)
 
@@ -274,7 +280,8 @@ def test_a_wire_above_points_that_make_no_track_is_uncertain() -> None:
 
 def test_a_crossing_keeps_both_wires_and_drops_the_pipe_on_them() -> None:
     # a turnout's wire crosses the main one at 4°, riding 12 mm over it at the crossing; a
-    # 1.6 m cross-over pipe lies on the main wire 37 mm above its contact point
+    # 1.6 m cross-over pipe lies on the main wire 37 mm above its contact point (the stream
+    # has both wires' points apart at the crossing: the cameras would merge them)
     stream = Stream(9000, seed=13)
     p = stream.position
     main = np.full(p.shape, -50.0)
@@ -285,8 +292,13 @@ def test_a_crossing_keeps_both_wires_and_drops_the_pipe_on_them() -> None:
     stream.wire(1, branch, 1600.0 + ride + np.maximum(p - 80.0, 0.0) * 20.0, seen)
     pipe = np.flatnonzero(np.abs(p - 75.0) < 0.8)
     stream.points(20, pipe, main[pipe] + 8.0, np.full(pipe.shape, 1637.0))
-    _, wire, truth, _, _, _ = run(stream, 1024)
+    scan, wire, truth, _, _, uncertain = run(stream, 1024, uncertain_rows=True)
     assert set(np.unique(truth).tolist()) == {0, 1}
+    # where the wires are within CROSSING_MM across the cameras see one image of both:
+    # those rows are uncertain, and only those
+    across = np.abs(branch - main)[scan]
+    assert np.all(across[uncertain] < CROSSING_MM + 1.0)
+    assert np.all(uncertain[across < CROSSING_MM - 1.0])
     s, _, _, t = stream.arrays()
     for label in (0, 1):  # each wire wherever it runs within the messenger gap
         assert np.count_nonzero(truth == label) >= 0.99 * np.count_nonzero(

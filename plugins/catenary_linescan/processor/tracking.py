@@ -34,7 +34,9 @@ the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 m
    ``messenger_gap_mm`` below the point's track, mark it ``selection_uncertain`` (a column
    of the released points): the selection cannot tell which wire runs there. So
    does a track alone in view that was last seen above another wire, not level with one:
-   a messenger whose contact wire the cameras lost;
+   a messenger whose contact wire the cameras lost; and a point with another track within
+   ``CROSSING_MM`` across at its height (a turnout's crossing: the cameras see one image of
+   both wires, located between them);
 5. **numbers** each track at its first contact point (0, 1, ... in order of appearance) and
    keeps the number through the run: a track that ended up to ``reidentify_m`` before and
    near where the new one starts hands its number over;
@@ -69,8 +71,8 @@ __all__ = [
 
 UNCERTAIN_COLUMN = "selection_uncertain"
 """Column of :class:`TrackedPoints` set where the selection cannot tell that a point is the
-contact wire: a lower wire's points beneath its track, or its track alone in view after it
-was seen above another wire (step 4 of the module docstring)."""
+contact wire: a lower wire's points beneath its track, its track alone in view after it
+was seen above another wire, or another wire crossing it (step 4 of the module docstring)."""
 
 LOWER_WIRE_POINTS = 5
 """Fewest verified points beneath a track that show a lower wire there (``MIN_TRACK_POINTS``:
@@ -85,6 +87,10 @@ disagree (a new wire by day, located by its silhouettes) differ by less."""
 
 RESTING_ACROSS_MM = 30.0
 """Distance across [mm] within which a point above a wire rests on it: two wire widths."""
+
+CROSSING_MM = 20.0
+"""Distance across [mm] within which two wires at one height (a turnout's crossing) make one
+image in the cameras: the widest wire (15 mm) and the blur. Neither is located there."""
 
 
 MIN_TRACK_POINTS = 5
@@ -810,9 +816,9 @@ class WireTracker:
         released = store.split(store.scan < horizon_scan)
         tracks = {**self._closed, **{t.id: t for t in self._open.values() if t.confirmed}}
         wire_track = np.isin(released.track, list(tracks))
-        above, company = self._above_a_wire(released, tracks)
+        above, company, crossing = self._above_a_wire(released, tracks)
         contact = wire_track & ~above & (released.z_mm <= self.config.max_height_mm)
-        uncertain = contact & self._lower_wire_beneath(released, contact, tracks)
+        uncertain = contact & (crossing | self._lower_wire_beneath(released, contact, tracks))
         uncertain |= contact & self._above_before(released, wire_track, above, company)
         # numbers, for tracks whose first contact point this is (in order of appearance)
         wire = np.full(released.scan.shape[0], -1, dtype=np.int64)
@@ -895,12 +901,15 @@ class WireTracker:
 
     def _above_a_wire(
         self, released: _Store, tracks: Mapping[int, _Track]
-    ) -> tuple[NDArray[np.bool_], IntArray]:
-        """Whether each released point lies above a confirmed track at its scan, and how many
-        confirmed tracks are in view there (its own included). Above is more than
-        ``messenger_gap_mm`` above the lowest (a messenger, a wire raised out of running), or
-        more than ``RESTING_MM`` above one within ``RESTING_ACROSS_MM`` across (a crossing's
-        pipe resting on the wire, a wire riding over it: the pantograph touches the lower).
+    ) -> tuple[NDArray[np.bool_], IntArray, NDArray[np.bool_]]:
+        """Whether each released point lies above a confirmed track at its scan, how many
+        confirmed tracks are in view there (its own included), and whether another track
+        crosses it there. Above is more than ``messenger_gap_mm`` above the lowest (a
+        messenger, a wire raised out of running), or more than ``RESTING_MM`` above one within
+        ``RESTING_ACROSS_MM`` across (a crossing's pipe resting on the wire, a wire riding
+        over it: the pantograph touches the lower). Crossing is another wire's track (one
+        seen in a scan with it) within ``CROSSING_MM`` across and ``RESTING_MM`` in height:
+        one image of both wires.
 
         Each track is interpolated between its points (so a scan where it was missed still
         counts) and held beyond its ends for ``max_gap_m`` (a wire missed in the first or
@@ -908,16 +917,20 @@ class WireTracker:
         """
         lowest = np.full(released.scan.shape[0], np.inf)
         resting = np.zeros(released.scan.shape[0], dtype=bool)
+        crossing = np.zeros(released.scan.shape[0], dtype=bool)
         company = np.zeros(released.scan.shape[0], dtype=np.int64)
         store = self._store
         reach = self.config.max_gap_m
-        for track_id in tracks:  # one step per wire in view
-            s, p, x, h = self._track_points(
+        points = {
+            track_id: self._track_points(
                 released,
                 released.track == track_id,
                 store.track == track_id,
                 self._last_released.get(track_id),
             )
+            for track_id in tracks
+        }
+        for track_id, (s, p, x, h) in points.items():  # one step per wire in view
             if s.shape[0] == 0:
                 continue
             near = (released.position_m >= p[0] - reach) & (released.position_m <= p[-1] + reach)
@@ -926,7 +939,19 @@ class WireTracker:
             company += near
             across = np.abs(np.interp(released.scan, s, x) - released.x_mm)
             resting |= (across <= RESTING_ACROSS_MM) & (released.z_mm > z + RESTING_MM)
-        return resting | (released.z_mm > lowest + self.config.messenger_gap_mm), company
+            # within the track's own span (held beyond its ends, its x would cross others), by
+            # a track seen in a scan with it (another wire: one wire's two tracks, by its face
+            # and by its silhouettes, never share a scan)
+            spanned = (released.scan >= s[0]) & (released.scan <= s[-1])
+            level = spanned & (np.abs(released.z_mm - z) <= RESTING_MM)
+            others = [
+                other
+                for other, (s_other, *_) in points.items()
+                if other != track_id and np.isin(s_other, s).any()
+            ]
+            crossing |= np.isin(released.track, others) & (across <= CROSSING_MM) & level
+        above = resting | (released.z_mm > lowest + self.config.messenger_gap_mm)
+        return above, company, crossing
 
     def _above_before(
         self,
