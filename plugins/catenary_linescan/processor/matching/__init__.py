@@ -40,8 +40,9 @@ over the scans of a block:
    two cameras at least saw the face (the contact point), else from the middles of the
    wire's silhouettes (its axis), with a leave-one-out check that drops a camera whose image
    the others do not predict. A camera whose dark silhouette is wider than the widest wire
-   (``max_wire_width_mm``) sees a clamp on the wire or objects in line: it is left out, and a
-   point without two cameras left has no position (a new wire at a dropper clamp).
+   (``max_wire_width_mm``) or than the point's other silhouettes sees a clamp on the wire or
+   objects in line: it gives no axis and only a worn face clear inside it, and a point
+   without two cameras left has no position (a new wire at a dropper clamp).
 6. **Two views**: points of two cameras made of the detections left unused, where both saw a
    face, are returned unverified (``Matches.verified``): tracking takes them only where they
    continue a wire it follows (a blind camera and a missed detection at once).

@@ -153,8 +153,8 @@ def _triangulate_matches(
     """Step 5: each point from all its cameras (face midpoints where two saw the face).
 
     A camera whose dark silhouette is wider than a wire can be (:func:`_bare_silhouettes`:
-    a clamp on the wire, objects in line) is left out; a point left with one camera has no
-    position (NaN).
+    a clamp on the wire, objects in line) gives no axis, and a face only clear inside it; a
+    point left with one camera has no position (NaN).
 
     Where a point has a camera to spare, the camera whose image lies furthest outside its
     confirmation window from the point the other cameras give (leave-one-out) is dropped
@@ -175,8 +175,9 @@ def _triangulate_matches(
     from_face, ideal = _image_points(cameras, left, right, face_left, face_right, config)
     result = triangulate(pinholes, ideal, sigma_px=sigma)
     # a dark silhouette (against a bright sky: the wire's outline) wider than a wire can be
-    # is a clamp on the wire or objects in line: its middle is not the wire's, nor are the
-    # edges inside it a worn face's (a lit wire's extent is not its outline: not judged)
+    # is a clamp on the wire or objects in line: its middle is not the wire's, nor is a
+    # face reaching its edges (a worn face clear inside it is; a lit wire's extent is not
+    # its outline: not judged)
     (polarity,) = _gather(scan, slot, candidates.polarity.astype(np.float64))
     dark = polarity < 0
     wide = dark & ~_bare_silhouettes(
@@ -187,12 +188,16 @@ def _triangulate_matches(
         result.z_mm,
         config.max_wire_width_mm,
     )
+    with np.errstate(invalid="ignore"):
+        clear = (face_left - left > _SILHOUETTE_SLACK_PX) & (
+            right - face_right > _SILHOUETTE_SLACK_PX
+        )
+    lost = wide & ~clear
     rows = np.flatnonzero(wide.any(axis=1))
     if rows.shape[0]:
-        slot = np.where(wide, -1, slot)
-        left, right, face_left, face_right = (
-            np.where(wide, np.nan, v)[rows] for v in (left, right, face_left, face_right)
-        )
+        slot = np.where(lost, -1, slot)
+        left, right = (np.where(wide, np.nan, v)[rows] for v in (left, right))
+        face_left, face_right = (np.where(lost, np.nan, v)[rows] for v in (face_left, face_right))
         from_face[rows], ideal[rows] = _image_points(
             cameras, left, right, face_left, face_right, config
         )
