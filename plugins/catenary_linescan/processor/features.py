@@ -54,7 +54,9 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
    as its sides, just inside it) takes that boundary's edge. An edge must be significant
    (``face_k`` noise deviations) and sharp: its first-difference peak falls by three
    quarters ``sharp_px`` away on both sides, which a blurred step does and the smooth
-   shading of a round, unworn wire does not (a new wire has no face).
+   shading of a round, unworn wire does not (a new wire has no face). The blur that sets
+   ``sharp_px`` is the lens's, fixed on the wire in millimetres, not in pixels: a rig's
+   config scales it to its coarsest resolution (:meth:`FeatureConfig.from_resolution`).
 5. **Sub-pixel.** Each edge is the vertex of the parabola through the logarithm of the three
    first differences around its extremum: exact for a Gaussian-blurred step at any phase,
    where a plain parabola is biased by up to 0.03 px (it is used when the values do not
@@ -125,6 +127,14 @@ _GUARD_PX = 3
 """Pixels inside a dark silhouette's boundaries left out of its face search."""
 _PROMINENCE = 0.75
 """A face edge's first difference must fall by this fraction of its peak ``sharp_px`` away."""
+_SHARP_MM = 1.75
+"""Distance on the wire [mm] within which a face edge's first difference falls to a quarter
+of its peak: three times the optical blur (sigma). The lens sets that blur on the wire, not
+on the sensor: keeping a measuring range of depths about 1:2 in focus, the few millimetres
+of aperture a line-scan lens has at f/8-f/16 blur the wire at the range's ends by a defocus
+disc of 2-3 mm (sigma about 0.6 mm) whatever the pixels behind it. 4 px at 0.44 mm/px, the
+demo rig's coarsest resolution, where ``sharp_px`` was established; a 16,384-px line sees
+the same blur over two to three times as many pixels as a 4096-px one (up to ~10 px)."""
 _NEAR_PX = 3.5
 _NEAR_MIN_PX = 0.8
 """A dark silhouette's face edge between these distances [px] from the silhouette is fitted
@@ -183,7 +193,9 @@ class FeatureConfig:
         Significance of a face edge: its first difference in noise deviations.
     sharp_px : int
         Distance at which a face edge's first difference must have fallen to a quarter of
-        its peak: about three times the optical blur (sigma) in pixels.
+        its peak: about three times the optical blur (sigma) in pixels. The default holds
+        for pixels of up to 0.44 mm on the wire; :meth:`from_resolution` scales it to a
+        rig's (``_SHARP_MM``).
     noise_samples : int
         Pixel pairs per line for the noise estimate.
     noise_floor_lsb : float
@@ -231,10 +243,14 @@ class FeatureConfig:
         **overrides: object,
     ) -> FeatureConfig:
         """The config for wires ``wire_width_mm`` (narrowest, widest) seen at ``mm_per_px``
-        (finest, coarsest, e.g. from the rig's resolution table) over the measuring range."""
+        (finest, coarsest, e.g. from the rig's resolution table) over the measuring range;
+        ``sharp_px`` covers the lens's blur on the wire (``_SHARP_MM``) at the coarsest
+        resolution, and never less than the default."""
         fine, coarse = sorted(mm_per_px)
         width = (wire_width_mm[0] / coarse, wire_width_mm[1] / fine)
-        return cls(wire_width_px=width, **overrides)  # type: ignore[arg-type]
+        sharp = max(cls.sharp_px, math.ceil(_SHARP_MM / coarse))
+        settings: dict[str, object] = {"wire_width_px": width, "sharp_px": sharp, **overrides}
+        return cls(**settings)  # type: ignore[arg-type]
 
     @property
     def background(self) -> float:
