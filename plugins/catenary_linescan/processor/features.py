@@ -1066,7 +1066,7 @@ def _fine(
         return _Found.empty()
     wires = _kept_wires(windows, sky, contrast, boundaries, sel, cfg)
     edges = _face_edges(wires, cfg)
-    faces = _one_sided_faces(wires, edges)
+    faces = _one_sided_faces(wires, edges, cfg)
     fitted = _near_silhouette_fit(wires, faces)
     # a wire whose sides are too dark to be seen (at night) is narrow but has its face
     keep = boundaries.wide_enough[sel] | fitted.has_face
@@ -1375,7 +1375,7 @@ class _Faces:
     took_right: NDArray[np.bool_]
 
 
-def _one_sided_faces(wires: _Wires, edges: _FaceEdges) -> _Faces:
+def _one_sided_faces(wires: _Wires, edges: _FaceEdges, cfg: FeatureConfig) -> _Faces:
     """Step 4's one-sided faces: a dark silhouette's face may reach the silhouette on one
     side. Then it has one inner edge, and the wire is as bright as the face, not as dark as
     its sides, just inside that boundary; the face takes the boundary's edge."""
@@ -1413,7 +1413,9 @@ def _one_sided_faces(wires: _Wires, edges: _FaceEdges) -> _Faces:
         face_left[one] = np.where(~rising & reaches, boundary_edge, face_left[one])
         one_sided[one] = reaches
         took_right[one] = reaches & rising
-    found = ((rise_ok & fall_ok) | one_sided) & (face_right > face_left)
+    # two edges closer than the blur's sigma (a third of sharp_px) are one edge found twice
+    # (a face narrower than the blur reads as wide as the blur)
+    found = ((rise_ok & fall_ok) | one_sided) & (face_right - face_left > cfg.sharp_px / 3.0)
     return _Faces(face_left, face_right, found, one_sided, took_right)
 
 
