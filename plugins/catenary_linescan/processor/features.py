@@ -1413,9 +1413,10 @@ def _one_sided_faces(wires: _Wires, edges: _FaceEdges, cfg: FeatureConfig) -> _F
         face_left[one] = np.where(~rising & reaches, boundary_edge, face_left[one])
         one_sided[one] = reaches
         took_right[one] = reaches & rising
-    # two edges closer than the blur's sigma (a third of sharp_px) are one edge found twice
-    # (a face narrower than the blur reads as wide as the blur)
-    found = ((rise_ok & fall_ok) | one_sided) & (face_right - face_left > cfg.sharp_px / 3.0)
+    # a one-sided face's inner edge within the blur's sigma (a third of sharp_px) of the
+    # boundary's edge is that edge found twice: the silhouette's own blurred ramp
+    apart = face_right - face_left
+    found = (rise_ok & fall_ok & (apart > 0.0)) | (one_sided & (apart > cfg.sharp_px / 3.0))
     return _Faces(face_left, face_right, found, one_sided, took_right)
 
 
