@@ -54,11 +54,17 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
    as its sides, just inside it) takes that boundary's edge. An edge must be significant
    (``face_k`` noise deviations) and sharp: its first-difference peak falls by three
    quarters ``sharp_px`` away on both sides, which a blurred step does and the smooth
-   shading of a round, unworn wire does not (a new wire has no face).
+   shading of a round, unworn wire does not (a new wire has no face). The blur that sets
+   ``sharp_px`` is the lens's, fixed on the wire in millimetres, not in pixels: a rig's
+   config scales it to its coarsest resolution (:meth:`FeatureConfig.from_resolution`).
 5. **Sub-pixel.** Each edge is the vertex of the parabola through the logarithm of the three
    first differences around its extremum: exact for a Gaussian-blurred step at any phase,
    where a plain parabola is biased by up to 0.03 px (it is used when the values do not
-   allow the logarithm). Boundaries are linearly interpolated level crossings.
+   allow the logarithm). A blur of several pixels (a rig whose ``sharp_px`` exceeds
+   ``_PEAKED_PX``) is mostly defocus, flat-topped, and the vertex wanders over its top with
+   the noise: the edge is then a centroid of its first difference within ``sharp_px``
+   (:func:`_edge`), unbiased for any symmetric blur. Boundaries are linearly interpolated
+   level crossings.
 6. **A dark silhouette's face edge next to its silhouette** (white daylight, wide faces):
    the step from the sky down to the wire's dark side and the step up to the face are
    opposite and pull each other's first-difference peaks apart (by about 1 px when 1.5 px
@@ -125,6 +131,22 @@ _GUARD_PX = 3
 """Pixels inside a dark silhouette's boundaries left out of its face search."""
 _PROMINENCE = 0.75
 """A face edge's first difference must fall by this fraction of its peak ``sharp_px`` away."""
+_SHARP_MM = 1.75
+"""Distance on the wire [mm] within which a face edge's first difference falls to a quarter
+of its peak: three times the optical blur (sigma). The lens sets that blur on the wire, not
+on the sensor: keeping a measuring range of depths about 1:2 in focus, the few millimetres
+of aperture a line-scan lens has at f/8-f/16 blur the wire at the range's ends by a defocus
+disc of 2-3 mm (sigma about 0.6 mm) whatever the pixels behind it. 4 px at 0.44 mm/px, the
+demo rig's coarsest resolution, where ``sharp_px`` was established; a 16,384-px line sees
+the same blur over two to three times as many pixels as a 4096-px one (up to ~10 px)."""
+_PEAKED_PX = 4
+"""Up to this ``sharp_px`` the blur is about a pixel, diffraction's and the lens's, nearly
+Gaussian: the log-parabola through three first differences locates an edge exactly. Beyond
+it (the lens's blur spread over finer pixels) the blur is mostly defocus, the projection of
+a disc: flat-topped over several pixels, where the three top samples wander with the noise
+(face widths +-3 px on a 16,384-px line); the edge is then a centroid of its first
+difference within ``sharp_px`` (:func:`_edge`)."""
+_CENTROID_ITERATIONS = 3
 _NEAR_PX = 3.5
 _NEAR_MIN_PX = 0.8
 """A dark silhouette's face edge between these distances [px] from the silhouette is fitted
@@ -183,7 +205,9 @@ class FeatureConfig:
         Significance of a face edge: its first difference in noise deviations.
     sharp_px : int
         Distance at which a face edge's first difference must have fallen to a quarter of
-        its peak: about three times the optical blur (sigma) in pixels.
+        its peak: about three times the optical blur (sigma) in pixels. The default holds
+        for pixels of up to 0.44 mm on the wire; :meth:`from_resolution` scales it to a
+        rig's (``_SHARP_MM``).
     noise_samples : int
         Pixel pairs per line for the noise estimate.
     noise_floor_lsb : float
@@ -231,10 +255,14 @@ class FeatureConfig:
         **overrides: object,
     ) -> FeatureConfig:
         """The config for wires ``wire_width_mm`` (narrowest, widest) seen at ``mm_per_px``
-        (finest, coarsest, e.g. from the rig's resolution table) over the measuring range."""
+        (finest, coarsest, e.g. from the rig's resolution table) over the measuring range;
+        ``sharp_px`` covers the lens's blur on the wire (``_SHARP_MM``) at the coarsest
+        resolution, and never less than the default."""
         fine, coarse = sorted(mm_per_px)
         width = (wire_width_mm[0] / coarse, wire_width_mm[1] / fine)
-        return cls(wire_width_px=width, **overrides)  # type: ignore[arg-type]
+        sharp = max(cls.sharp_px, math.ceil(_SHARP_MM / coarse))
+        settings: dict[str, object] = {"wire_width_px": width, "sharp_px": sharp, **overrides}
+        return cls(**settings)  # type: ignore[arg-type]
 
     @property
     def background(self) -> float:
@@ -628,15 +656,38 @@ def _extremum_offset(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     return np.clip(off, -0.5, 0.5)
 
 
-def _edge(d: np.ndarray, rows: np.ndarray, k: np.ndarray, sign: np.ndarray) -> FloatArray:
+def _edge(
+    d: np.ndarray, rows: np.ndarray, k: np.ndarray, sign: np.ndarray, window: int = 0
+) -> FloatArray:
     """Sub-pixel positions (window coordinates) of the first-difference extrema ``d[rows, k]``:
-    ``sign`` +1 for rising edges, -1 for falling ones."""
+    ``sign`` +1 for rising edges, -1 for falling ones. The vertex of the log-parabola through
+    the three first differences around each extremum; with ``window`` > 0 then, from it, the
+    centroid within ``window`` px of the squared excess of the first difference over a
+    quarter of the extremum (step 5): the excess leaves out the noise and the shading slopes
+    beside the edge, its square is smooth where it starts (its samples locate a symmetric
+    profile at any phase), the window's end samples count by their part inside it."""
     width = d.shape[1]
     k = np.clip(k, 1, width - 2)
     at = rows * width + k + np.arange(-1, 2)[:, None]
     three = d.ravel()[at].astype(np.float64)  # (3, m)
     three *= sign
     position: FloatArray = k + 0.5 + _extremum_offset(three[0], three[1], three[2])
+    if window <= 0:
+        return position
+    steps = np.arange(-window - 1, window + 2)[None, :]
+    flat = d.ravel()
+    signs = np.broadcast_to(np.asarray(sign, dtype=np.float64), k.shape)[:, None]
+    floor = 0.25 * three[1][:, None]
+    for _ in range(_CENTROID_ITERATIONS):
+        j = np.floor(position - 0.5).astype(np.intp)[:, None] + steps
+        x = j + 0.5  # where each first difference sits
+        inside = np.clip(window + 0.5 - np.abs(x - position[:, None]), 0.0, 1.0)
+        values = flat[rows[:, None] * width + np.clip(j, 0, width - 1)] * signs
+        mass = np.maximum(values - floor, 0.0) ** 2 * inside
+        total = mass.sum(axis=1)
+        position = np.where(
+            total > 0, (mass * x).sum(axis=1) / np.where(total > 0, total, 1.0), position
+        )
     return position
 
 
@@ -1015,7 +1066,7 @@ def _fine(
         return _Found.empty()
     wires = _kept_wires(windows, sky, contrast, boundaries, sel, cfg)
     edges = _face_edges(wires, cfg)
-    faces = _one_sided_faces(wires, edges)
+    faces = _one_sided_faces(wires, edges, cfg)
     fitted = _near_silhouette_fit(wires, faces)
     # a wire whose sides are too dark to be seen (at night) is narrow but has its face
     keep = boundaries.wide_enough[sel] | fitted.has_face
@@ -1266,7 +1317,8 @@ def _kept_wires(
 @dataclass(frozen=True)
 class _FaceEdges:
     """The strongest rising and falling first difference inside each wire, ``(s,)`` each:
-    where (``rise_k``, ``fall_k``), whether significant and sharp, and sub-pixel [window px]."""
+    where (``rise_k``, ``fall_k``), whether significant and sharp, and sub-pixel [window px];
+    ``window``: the centroid's half-width [px] (0: the log-parabola's vertex, :func:`_edge`)."""
 
     rise_k: IndexArray
     fall_k: IndexArray
@@ -1274,6 +1326,7 @@ class _FaceEdges:
     fall_ok: NDArray[np.bool_]
     left: FloatArray
     right: FloatArray
+    window: int
 
 
 def _face_edges(wires: _Wires, cfg: FeatureConfig) -> _FaceEdges:
@@ -1305,8 +1358,9 @@ def _face_edges(wires: _Wires, cfg: FeatureConfig) -> _FaceEdges:
         later = offsets > (k1[again] - at[again])[:, None]
         k2[again] = at[again] + np.argmin(dz[again] * later, axis=1)
     fall_ok = _sharp(d4, rows, k2, sign2[ms:], wires.t_face, reach) & (~rise_ok | (k2 > k1))
-    both = _edge(d4, np.tile(rows, 2), np.concatenate([k1, k2]), sign2)
-    return _FaceEdges(k1, k2, rise_ok, fall_ok, both[:ms], both[ms:])
+    window = cfg.sharp_px if cfg.sharp_px > _PEAKED_PX else 0
+    both = _edge(d4, np.tile(rows, 2), np.concatenate([k1, k2]), sign2, window)
+    return _FaceEdges(k1, k2, rise_ok, fall_ok, both[:ms], both[ms:], window)
 
 
 @dataclass(frozen=True)
@@ -1321,7 +1375,7 @@ class _Faces:
     took_right: NDArray[np.bool_]
 
 
-def _one_sided_faces(wires: _Wires, edges: _FaceEdges) -> _Faces:
+def _one_sided_faces(wires: _Wires, edges: _FaceEdges, cfg: FeatureConfig) -> _Faces:
     """Step 4's one-sided faces: a dark silhouette's face may reach the silhouette on one
     side. Then it has one inner edge, and the wire is as bright as the face, not as dark as
     its sides, just inside that boundary; the face takes the boundary's edge."""
@@ -1351,13 +1405,18 @@ def _one_sided_faces(wires: _Wires, edges: _FaceEdges) -> _Faces:
             _zone_argmax(d_one, rb - _GUARD_PX, rb + 1),
             _zone_argmax(-d_one, lb - 2, lb + _GUARD_PX - 1),
         )
-        boundary_edge = _edge(d_one, np.arange(one.shape[0]), kb, np.where(rising, 1.0, -1.0))
+        boundary_edge = _edge(
+            d_one, np.arange(one.shape[0]), kb, np.where(rising, 1.0, -1.0), edges.window
+        )
         face_left, face_right = face_left.copy(), face_right.copy()
         face_right[one] = np.where(rising & reaches, boundary_edge, face_right[one])
         face_left[one] = np.where(~rising & reaches, boundary_edge, face_left[one])
         one_sided[one] = reaches
         took_right[one] = reaches & rising
-    found = ((rise_ok & fall_ok) | one_sided) & (face_right > face_left)
+    # a one-sided face's inner edge within the blur's sigma (a third of sharp_px) of the
+    # boundary's edge is that edge found twice: the silhouette's own blurred ramp
+    apart = face_right - face_left
+    found = (rise_ok & fall_ok & (apart > 0.0)) | (one_sided & (apart > cfg.sharp_px / 3.0))
     return _Faces(face_left, face_right, found, one_sided, took_right)
 
 
