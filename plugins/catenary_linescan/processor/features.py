@@ -67,15 +67,17 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
    the wire's other side or fitted, the blur from the other silhouette edge's peak). Closer
    than that the two cannot be told apart.
 
-Faces narrower than the optical blur (about 2.5 px) are not resolved: their edges read about
-2.6-2.9 px apart. Near the wear limit the opposite: a face edge closer to its silhouette
-than the blur (the wire's side between them a strip of ``g`` px at level ``D``, the sky
-``S`` beyond, the face ``F``) merges with it into one step, to first order a step from ``S``
-to ``F`` at ``g (F - D) / (F - S)`` px from the silhouette: the edge is located
-``g (S - D) / (F - S)`` px inward of the face's. No estimator on one line tells ``g`` from
-``D``. Bright faces on a sky brighter than the wire's sides (by day behind the filter: about
+Faces narrower than the optical blur (about 2.5-3 px with the smoothing) are not resolved:
+their edges read about 2.4-3.3 px apart. Near the wear limit the opposite: a face edge closer
+to its silhouette than the blur (the wire's side between them a strip of ``g`` px at level
+``D``, the sky ``S`` beyond, the face ``F``) merges with it into one step, to first order a
+step from ``S`` to ``F`` at ``g (F - D) / (F - S)`` px from the silhouette: the edge is
+located ``g (S - D) / (F - S)`` px inward of the face's. No estimator on one line tells ``g``
+from ``D``. Bright faces on a sky brighter than the wire's sides (by day behind the filter: about
 ``0.1 g``) read narrow; dark silhouettes (white daylight, ``S`` far above ``F``) read wide by
-more than ``g`` where the face is taken to reach the silhouette (step 4).
+more than ``g`` where the face is taken to reach the silhouette (step 4). Where both dark
+sides are narrower than the blur, step 6 fits a dark level it never sees and the face reads
+narrow (0.2-1.3 px with a sharp lens on three-level lines, more under defocus).
 
 The point to triangulate (``centre_px``) is the face's centre, the contact point, when a face
 is found, else the middle of the wire's boundaries (the wire's axis, a radius above the
@@ -275,8 +277,8 @@ class LineFeatures:
         Worn face edges [px], sub-pixel; NaN when no face was found.
     face_width_px : float64
         ``face_right_px - face_left_px`` [px]; NaN when no face was found. A new wire has no
-        face; faces narrower than the optical blur (about 2.5 px) are not resolved and read
-        about 2.6-2.9 px wide.
+        face; faces narrower than the optical blur (about 2.5-3 px) are not resolved and read
+        about 2.4-3.3 px wide.
     face_centre_px : float64
         Middle of the face edges [px]; NaN when no face was found.
     contrast : float64
