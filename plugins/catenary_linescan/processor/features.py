@@ -68,7 +68,8 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
    Gaussian blur started from the wider of the silhouette edges' peaks) by Gauss-Newton on
    the smoothed window. A dark side narrower than the blur shows its level only together
    with its width: the other side gives it. Closer than 0.8 px the two cannot be told
-   apart: that side keeps its edges (and a one-sided face, step 4, its own).
+   apart: that side keeps its edges (and a one-sided face, step 4, its own); so does a face
+   narrower than three blur deviations, whose level and width trade off.
 
 Faces narrower than the optical blur (about 2.5-3 px with the smoothing) are not resolved:
 their edges read about 2.4-3.3 px apart. Near the wear limit the opposite: a face edge closer
@@ -1407,8 +1408,9 @@ def _fit_wire(
     side: the sky's ramp, the dark sides' level (one for both), the face's level, the four
     edges and the blur (a Gaussian; its start from the wider of the silhouette edges'
     first-difference peaks) by Gauss-Newton. A side narrower than the blur gives its
-    level only together with its width: the other side gives it. A fit that moves an edge
-    by 3 px or more keeps the edges found.
+    level only together with its width: the other side gives it. A face narrower than three
+    blur deviations never shows its level either, and its level and width trade off: it
+    keeps the edges found, as does a fit that moves an edge by 3 px or more.
     """
     xs = wires.xs[pick].astype(np.float64)
     k, width = xs.shape
@@ -1469,6 +1471,7 @@ def _fit_wire(
         face += delta[:, 5]
         scale *= np.exp(np.clip(delta[:, 6] / scale, -0.5, 0.5))
     good = np.all(np.abs(fitted - edges) < 3.0, axis=1)
+    good &= edges[:, 2] - edges[:, 1] > 3.0 * np.sqrt(variance)
     out: FloatArray = np.where(good[:, None], fitted, edges)
     return out
 
