@@ -12,6 +12,7 @@ from catenary_linescan.calibrate import calibrate_from_captures, rig_from_report
 from catenary_linescan.simulator.captures import write_captures
 from catenary_linescan.simulator.rig import parse_rig
 from catenary_linescan.simulator.rigs import generate_rig
+from catenary_linescan.simulator.sensor import expose
 
 SHAPES = [(2, 2048, 8), (3, 4096, 10), (4, 8192, 12), (6, 16384, 16)]
 
@@ -63,11 +64,23 @@ def test_the_seed_decides_and_the_text_reproduces_the_rig() -> None:
     assert again == a
 
 
-def test_gain_fills_the_bit_depth() -> None:
+@pytest.mark.parametrize("pixels", [2048, 8192])  # f/4 and f/16
+def test_gain_fills_the_bit_depth(pixels: int) -> None:
+    """The lines look alike at any aperture: the full well's worth of light at f/8 fills the
+    range (through the gain or the exposure time)."""
     for bits in (8, 12, 16):
-        cam = generate_rig(3, cameras=2, pixels=2048, bit_depth=bits).cameras[0]
-        at_f8 = cam.gain_dn_per_e * cam.full_well_e * (8.0 / cam.f_number) ** 2
+        cam = generate_rig(3, cameras=2, pixels=pixels, bit_depth=bits).cameras[0]
+        at_f8 = cam.gain_dn_per_e * cam.full_well_e * (8.0 / cam.f_number) ** 2 * cam.exposure
         assert at_f8 == pytest.approx(2**bits - 1)
+
+
+@pytest.mark.parametrize("pixels", [2048, 8192])
+def test_the_sensor_saturates_at_the_top_of_the_range(pixels: int) -> None:
+    """A full well reads the range's top, never a grey level below it (at a wide aperture the
+    exposure is shortened, not the gain lowered): a clipped pixel is recognisable."""
+    for bits in (8, 10, 16):
+        cam = generate_rig(3, cameras=2, pixels=pixels, bit_depth=bits).cameras[0]
+        assert int(expose(np.full((1, 4), 1e9), cam, None).max()) == 2**bits - 1
 
 
 @pytest.mark.parametrize("bad", [{"cameras": 1}, {"cameras": 7}, {"pixels": 3000}])

@@ -68,20 +68,27 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
 6. **A dark silhouette's face edge next to its silhouette** (white daylight, wide faces):
    the step from the sky down to the wire's dark side and the step up to the face are
    opposite and pull each other's first-difference peaks apart (by about 1 px when 1.5 px
-   apart). From 0.8 to 3.5 px apart both are fitted together (Gauss-Newton on a blurred
-   three-level profile: sky and face levels measured beside them, the dark side's level on
-   the wire's other side or fitted, the blur from the other silhouette edge's peak). Closer
-   than that the two cannot be told apart.
+   apart, still 0.1-0.5 px at 3 px under a blur of 1 px). A wire with a face edge from 0.8
+   to 6 px from its silhouette is fitted whole: a blurred four-edge profile (the sky's
+   ramp beside it, one level for both dark sides, the face's level, the four edges and a
+   Gaussian blur started from the wider of the silhouette edges' peaks) by Gauss-Newton on
+   the smoothed window. A dark side narrower than the blur shows its level only together
+   with its width: the other side gives it. Closer than 0.8 px the two cannot be told
+   apart: that side keeps its edges (and a one-sided face, step 4, its own); so does a face
+   narrower than three blur deviations, whose level and width trade off.
 
-Faces narrower than the optical blur (about 2.5 px) are not resolved: their edges read about
-2.6-2.9 px apart. Near the wear limit the opposite: a face edge closer to its silhouette
-than the blur (the wire's side between them a strip of ``g`` px at level ``D``, the sky
-``S`` beyond, the face ``F``) merges with it into one step, to first order a step from ``S``
-to ``F`` at ``g (F - D) / (F - S)`` px from the silhouette: the edge is located
-``g (S - D) / (F - S)`` px inward of the face's. No estimator on one line tells ``g`` from
-``D``. Bright faces on a sky brighter than the wire's sides (by day behind the filter: about
+Faces narrower than the optical blur (about 2.5-3 px with the smoothing) are not resolved:
+their edges read about 2.4-3.3 px apart. Near the wear limit the opposite: a face edge closer
+to its silhouette than the blur (the wire's side between them a strip of ``g`` px at level
+``D``, the sky ``S`` beyond, the face ``F``) merges with it into one step, to first order a
+step from ``S`` to ``F`` at ``g (F - D) / (F - S)`` px from the silhouette: the edge is
+located ``g (S - D) / (F - S)`` px inward of the face's. No estimator on one line tells ``g``
+from ``D``. Bright faces on a sky brighter than the wire's sides (by day behind the filter: about
 ``0.1 g``) read narrow; dark silhouettes (white daylight, ``S`` far above ``F``) read wide by
-more than ``g`` where the face is taken to reach the silhouette (step 4).
+more than ``g`` where the face is taken to reach the silhouette (step 4). Where both dark
+sides are narrower than about twice the blur their level is seen nowhere, and the face reads
+narrow (on three-level lines with a sharp lens by 0.3 px at sides of 2 px, 1 px at 1 px;
+more under defocus).
 
 The point to triangulate (``centre_px``) is the face's centre, the contact point, when a face
 is found, else the middle of the wire's boundaries (the wire's axis, a radius above the
@@ -147,13 +154,11 @@ a disc: flat-topped over several pixels, where the three top samples wander with
 (face widths +-3 px on a 16,384-px line); the edge is then a centroid of its first
 difference within ``sharp_px`` (:func:`_edge`)."""
 _CENTROID_ITERATIONS = 3
-_NEAR_PX = 3.5
+_NEAR_PX = 6.0
 _NEAR_MIN_PX = 0.8
-"""A dark silhouette's face edge between these distances [px] from the silhouette is fitted
-with it (module docstring, step 6)."""
-_DARK_SIDE_PX = 4.0
-"""Least width [px] of the wire's dark side on its other side to measure its level there."""
-_FIT_ITERATIONS = 4
+"""A dark silhouette with a face edge between these distances [px] from its silhouette is
+fitted whole (module docstring, step 6)."""
+_FIT_ITERATIONS = 8
 _MIXED = 0.5
 """A candidate whose weaker deviation (bright or dark) exceeds this fraction of the stronger
 has no polarity (0)."""
@@ -303,8 +308,8 @@ class LineFeatures:
         Worn face edges [px], sub-pixel; NaN when no face was found.
     face_width_px : float64
         ``face_right_px - face_left_px`` [px]; NaN when no face was found. A new wire has no
-        face; faces narrower than the optical blur (about 2.5 px) are not resolved and read
-        about 2.6-2.9 px wide.
+        face; faces narrower than the optical blur (about 2.5-3 px) are not resolved and read
+        about 2.4-3.3 px wide.
     face_centre_px : float64
         Middle of the face edges [px]; NaN when no face was found.
     contrast : float64
@@ -1280,8 +1285,8 @@ class _Wires:
     top_k: IndexArray  # (s,) the last pixel a face edge may take
     dark: NDArray[np.bool_]  # (s,) a dark silhouette
     t_face: NDArray[np.float32]  # (s,) a face edge's least first difference
-    sky_l: NDArray[np.float32]  # (s,) the sky's level beside the wire
-    sky_r: NDArray[np.float32]  # (s,)
+    sky_ramp0: FloatArray  # (s,) the sky's ramp beside the wire at window pixel 0
+    sky_slope: NDArray[np.float32]  # (s,) its slope per window pixel
 
 
 def _kept_wires(
@@ -1309,8 +1314,8 @@ def _kept_wires(
         top_k=w.own[sel] - 3,
         dark=contrast.polarity[sel] < 0,
         t_face=cfg.face_k * 2.0 * w.sigma[sel],  # noise of d4: 2 sigma
-        sky_l=sky.left[sel],
-        sky_r=sky.right[sel],
+        sky_ramp0=sky.ramp0[sel],
+        sky_slope=sky.slope[sel],
     )
 
 
@@ -1432,129 +1437,102 @@ class _Fitted:
 
 
 def _near_silhouette_fit(wires: _Wires, faces: _Faces) -> _Fitted:
-    """Step 6: a dark silhouette's face edge between ``_NEAR_MIN_PX`` and ``_NEAR_PX`` from
-    its silhouette is fitted together with it (:func:`_refine_near`); not on the side where
-    a one-sided face took the boundary's edge."""
+    """Step 6: a dark silhouette with a face edge between ``_NEAR_MIN_PX`` and ``_NEAR_PX``
+    from its silhouette is fitted whole (:func:`_fit_wire`); a side whose edges are closer
+    than ``_NEAR_MIN_PX`` (one step) keeps them. A one-sided face keeps the edges it has."""
     clear_l = faces.left - wires.left
     clear_r = wires.right - faces.right
-    fit = wires.dark & faces.found
-    near_l = fit & (clear_l > _NEAR_MIN_PX) & (clear_l < _NEAR_PX)
-    near_r = fit & (clear_r > _NEAR_MIN_PX) & (clear_r < _NEAR_PX)
-    near_l &= ~(faces.one_sided & ~faces.took_right)
-    near_r &= ~(faces.one_sided & faces.took_right)
-    if not np.any(near_l | near_r):
+    near = (clear_l > _NEAR_MIN_PX) & (clear_l < _NEAR_PX)
+    near |= (clear_r > _NEAR_MIN_PX) & (clear_r < _NEAR_PX)
+    pick = np.flatnonzero(wires.dark & faces.found & ~faces.one_sided & near)
+    if pick.shape[0] == 0:
         return _Fitted(wires.left, wires.right, faces.left, faces.right, faces.found)
-    left, right, face_left, face_right = _refine_near(
-        wires.xs,
-        wires.d4,
-        np.flatnonzero(near_l),
-        np.flatnonzero(near_r),
-        wires.left,
-        wires.right,
-        faces.left,
-        faces.right,
-        wires.sky_l,
-        wires.sky_r,
-    )
+    edges = np.stack([wires.left, faces.left, faces.right, wires.right], axis=1)
+    held = np.stack([clear_l[pick], clear_r[pick]], axis=1)[:, [0, 0, 1, 1]] <= _NEAR_MIN_PX
+    edges[pick] = _fit_wire(wires, pick, edges[pick], held)
+    left, face_left, face_right, right = edges.T
     return _Fitted(left, right, face_left, face_right, faces.found & (face_right > face_left))
 
 
-def _refine_near(
-    xs: np.ndarray,
-    d: np.ndarray,
-    near_l: IndexArray,
-    near_r: IndexArray,
-    left: FloatArray,
-    right: FloatArray,
-    face_left: FloatArray,
-    face_right: FloatArray,
-    sky_l: np.ndarray,
-    sky_r: np.ndarray,
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Dark silhouettes whose face edge lies close to the silhouette (``near_l``: on the
-    left, ``near_r``: on the right): the two blurred steps (sky to the wire's dark side,
-    dark side to the face) pull each other's first-difference peaks apart. Fit both edges
-    of a blurred three-level profile (sky, dark side, face) by Gauss-Newton, with the sky
-    and face levels measured beside them, the dark side's level on the wire's other side
-    and the blur from the other silhouette edge's first-difference peak.
+def _fit_wire(
+    wires: _Wires, pick: IndexArray, edges: FloatArray, held: NDArray[np.bool_]
+) -> FloatArray:
+    """Edges ``(k, 4)`` (silhouette left, face left, face right, silhouette right; window
+    px) of the dark silhouettes ``pick`` ``(k,)``, fitted whole; the edges ``held``
+    ``(k, 4)`` stay where they are.
 
-    Works on the smoothed windows ``xs`` and their first difference ``d`` (window
-    coordinates); returns updated copies of the edges.
+    A face edge near its silhouette and the silhouette's edge are opposite blurred steps
+    that pull each other's first-difference peaks apart. The wire is fitted as a blurred
+    four-edge profile on the smoothed window, from four pixels of sky beside it on each
+    side: the sky's ramp, the dark sides' level (one for both), the face's level, the four
+    edges and the blur (a Gaussian; its start from the wider of the silhouette edges'
+    first-difference peaks) by Gauss-Newton. A side narrower than the blur gives its
+    level only together with its width: the other side gives it. A face narrower than three
+    blur deviations never shows its level either, and its level and width trade off: it
+    keeps the edges found, as does a fit that moves an edge by 3 px or more.
     """
-    left, right = left.copy(), right.copy()
-    face_left, face_right = face_left.copy(), face_right.copy()
-    width = xs.shape[1]
-    n = int(_NEAR_PX) + 12
-    t = np.arange(n, dtype=np.float64)[None, :]
-    # both sides at once: step +1 runs from the sky on the left inward, -1 from the right
-    pick = np.concatenate([near_l, near_r])
-    step = np.concatenate([np.ones(near_l.shape[0], np.intp), -np.ones(near_r.shape[0], np.intp)])
-    on_left = step > 0
-    rows = np.arange(pick.shape[0])
-    xs_p, d_p = xs[pick], d[pick]
-    lb = np.floor(left[pick]).astype(np.intp)
-    rb = np.ceil(right[pick]).astype(np.intp)
-    # the blur: sigma of the other silhouette edge's first-difference peak (log-parabola)
-    k = np.clip(np.where(on_left, rb, lb) - 2, 1, width - 6)
-    peak = k + np.argmax(_rows(d_p, k, 5) * step[:, None], axis=1)
-    three = _rows(d_p, peak - 1, 3).astype(np.float64) * step[:, None]
-    logs = np.log(np.maximum(three, 1e-6))
-    curv = np.minimum(logs[:, 0] - 2.0 * logs[:, 1] + logs[:, 2], -1e-6)
-    scale = 1.0 / np.sqrt(np.clip(-1.0 / curv - 1.0 / 12.0, 0.36, 9.0))[:, None]
-    # the dark side's level: the darkest pixel between the other face edge and silhouette,
-    # where a few pixels of it show; else it is fitted too
-    cols = np.arange(width)[None, :]
-    lo = np.where(on_left, np.ceil(face_right[pick]), lb)
-    hi = np.where(on_left, rb, np.floor(face_left[pick]))
-    side = (cols > lo[:, None]) & (cols < hi[:, None])
-    dark = np.where(side, xs_p, np.inf).min(axis=1)
-    free = ~np.isfinite(dark) | (hi - lo - 1 < _DARK_SIDE_PX)
-    origin = np.where(on_left, lb - 4, rb + 4)
-    edge0 = np.where(on_left, left[pick] - origin, origin - right[pick])
-    face0 = np.where(on_left, face_left[pick] - origin, origin - face_right[pick])
-    sky = np.where(on_left, sky_l[pick], sky_r[pick])
-    at_cols = np.clip(origin[:, None] + step[:, None] * np.arange(n), 0, width - 1)
-    v = xs_p[rows[:, None], at_cols].astype(np.float64)  # from the sky inward
-    face = v[rows, np.clip(np.rint(face0).astype(np.intp) + 3, 0, n - 1)]
-    strip = (t >= edge0[:, None]) & (t <= face0[:, None] + 1.0)
-    dark = np.where(free, np.where(strip, v, np.inf).min(axis=1), dark)
-    weight = t <= face0[:, None] + 5.0
-    edge, at = edge0.copy(), face0.copy()
+    xs = wires.xs[pick].astype(np.float64)
+    k, width = xs.shape
+    rows = np.arange(k)
+    lb = np.floor(edges[:, 0]).astype(np.intp)
+    rb = np.ceil(edges[:, 3]).astype(np.intp)
+    # the blur to start from: the wider of the silhouette edges' first-difference peaks
+    d = wires.d4[pick]
+    variance = np.zeros(k)
+    for at, falling in ((lb, -1.0), (rb, 1.0)):
+        first = np.clip(at - 2, 1, width - 6)
+        peak = first + np.argmax(_rows(d, first, 5) * falling, axis=1)
+        logs = np.log(np.maximum(_rows(d, peak - 1, 3).astype(np.float64) * falling, 1e-6))
+        curv = np.minimum(logs[:, 0] - 2.0 * logs[:, 1] + logs[:, 2], -1e-6)
+        variance = np.maximum(variance, np.clip(-1.0 / curv - 1.0 / 12.0, 0.36, 9.0))
+    scale = 1.0 / np.sqrt(variance)
+    # the window: four pixels of sky beside the silhouette on each side
+    t = np.clip(lb[:, None] - 4 + np.arange(int((rb - lb).max()) + 9), 0, width - 1)
+    weight = (t <= np.minimum(rb + 4, width - 1)[:, None]).astype(np.float64)
+    v = xs[rows[:, None], t]
+    t = t.astype(np.float64)
+    sky = wires.sky_ramp0[pick, None] + wires.sky_slope[pick, None].astype(np.float64) * t
+    interior = (t > lb[:, None]) & (t < rb[:, None])
+    dark = np.where(interior, v, np.inf).min(axis=1)
+    middle = np.rint(0.5 * (edges[:, 1] + edges[:, 2])).astype(np.intp)
+    face = xs[rows, np.clip(middle, 0, width - 1)]
+    fitted = edges.copy()
+    sign = np.array([1.0, 1.0, -1.0, -1.0])
     for _ in range(_FIT_ITERATIONS):
-        p_e, g_e = _normal_cdf((t - edge[:, None]) * scale)
-        p_f, g_f = _normal_cdf((t - at[:, None]) * scale)
-        sky_dark = (dark - sky)[:, None]
-        dark_face = (face - dark)[:, None]
-        res = (v - sky[:, None] - sky_dark * p_e - dark_face * p_f) * weight
-        # d model / d (edge, face edge, dark level), weighted
-        j1 = -scale * sky_dark * g_e * weight
-        j2 = -scale * dark_face * g_f * weight
-        j3 = (p_e - p_f) * (weight & free[:, None])
-        a11, a12, a13 = (j1 * j1).sum(1), (j1 * j2).sum(1), (j1 * j3).sum(1)
-        a22, a23, a33 = (j2 * j2).sum(1), (j2 * j3).sum(1), (j3 * j3).sum(1)
-        a33 += ~free  # the dark level stays where it is measured
-        ridge = 1e-9 * (a11 + a22) + 1e-12
-        a11 += ridge
-        a22 += ridge
-        b1, b2, b3 = (j1 * res).sum(1), (j2 * res).sum(1), (j3 * res).sum(1)
-        # Cramer's rule for the symmetric 3x3 normal equations
-        c11 = a22 * a33 - a23 * a23
-        c12 = a13 * a23 - a12 * a33
-        c13 = a12 * a23 - a13 * a22
-        c23 = a12 * a13 - a11 * a23
-        det = a11 * c11 + a12 * c12 + a13 * c13
-        det = np.where(np.abs(det) > 1e-30, det, np.inf)  # degenerate: no step
-        edge += np.clip((c11 * b1 + c12 * b2 + c13 * b3) / det, -1.0, 1.0)
-        at += np.clip((c12 * b1 + (a11 * a33 - a13 * a13) * b2 + c23 * b3) / det, -1.0, 1.0)
-        dark += (c13 * b1 + c23 * b2 + (a11 * a22 - a12 * a12) * b3) / det * free
-        at = np.maximum(at, edge)
-    good = np.isfinite(at) & (np.abs(at - face0) < 3.0) & (np.abs(edge - edge0) < 3.0)
-    sides = (good & on_left, good & ~on_left)
-    left[pick[sides[0]]] = (origin + edge)[sides[0]]
-    face_left[pick[sides[0]]] = (origin + at)[sides[0]]
-    right[pick[sides[1]]] = (origin - edge)[sides[1]]
-    face_right[pick[sides[1]]] = (origin - at)[sides[1]]
-    return left, right, face_left, face_right
+        z = t[:, None, :] - fitted[:, :, None]  # (k, 4, n)
+        cdf, pdf = _normal_cdf(z * scale[:, None, None])
+        wire = cdf[:, 0] - cdf[:, 3]
+        flat = cdf[:, 1] - cdf[:, 2]
+        step = np.stack([dark[:, None] - sky, (face - dark)[:, None] * np.ones_like(sky)], 1)
+        model = sky + step[:, 0] * wire + step[:, 1] * flat
+        # d model / d (the four edges, dark level, face level, blur scale)
+        height = step[:, [0, 1, 1, 0]] * sign[None, :, None]  # each edge's signed step
+        jac = np.concatenate(
+            [
+                -scale[:, None, None] * height * pdf,
+                (wire - flat)[:, None],
+                flat[:, None],
+                (height * pdf * z).sum(axis=1)[:, None],
+            ],
+            axis=1,
+        )
+        jac *= weight[:, None, :]
+        jac[:, :4] *= ~held[:, :, None]
+        normal = np.einsum("kin,kjn->kij", jac, jac)
+        normal += np.eye(7) * (1e-9 * np.trace(normal, axis1=1, axis2=2) + 1e-12)[:, None, None]
+        rhs = np.einsum("kin,kn->ki", jac, (v - model) * weight)
+        delta = np.linalg.solve(normal, rhs[:, :, None])[:, :, 0]
+        delta = np.where(np.isfinite(delta), delta, 0.0)
+        fitted += np.clip(delta[:, :4], -1.0, 1.0)
+        np.maximum.accumulate(fitted, axis=1, out=fitted)  # in their order
+        fitted[held] = edges[held]
+        dark += delta[:, 4]
+        face += delta[:, 5]
+        scale *= np.exp(np.clip(delta[:, 6] / scale, -0.5, 0.5))
+    good = np.all(np.abs(fitted - edges) < 3.0, axis=1)
+    good &= edges[:, 2] - edges[:, 1] > 3.0 * np.sqrt(variance)
+    out: FloatArray = np.where(good[:, None], fitted, edges)
+    return out
 
 
 def _normal_cdf(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -4,7 +4,8 @@
   tabulated from the true camera model every 1/32 px and linearly interpolated (the angle is
   smooth in ``u``; the error is below 1e-9 rad).
 - **Relative illumination**: ``(8 / N)²`` (the aperture relative to f/8, the unit of
-  :mod:`.radiometry`) times the natural vignetting ``cos⁴`` of the field angle.
+  :mod:`.radiometry`) times the camera's relative exposure time (``SimCamera.exposure``)
+  times the natural vignetting ``cos⁴`` of the field angle.
 - **Blur**: the line spread of a defocused thin lens is the projection of a uniform disc of
   diameter ``b`` (:meth:`SimCamera.defocus_diameter_px`), whose Fourier transform is the jinc
   ``2 J1(π b ν) / (π b ν)``; diffraction (``0.42 λ N``) and aberrations (``lens_blur_px``) are
@@ -68,7 +69,9 @@ class CameraOptics:
         self.sigma_px = math.hypot(camera.diffraction_sigma_px(wavelength_nm), camera.lens_blur_px)
         pixel_u = np.arange(self.pixels, dtype=np.float64)
         field = self.ray_angle(pixel_u) - math.radians(camera.tilt_deg)
-        self.relative_illumination: FloatArray = (8.0 / camera.f_number) ** 2 * np.cos(field) ** 4
+        self.relative_illumination: FloatArray = (
+            (8.0 / camera.f_number) ** 2 * camera.exposure * np.cos(field) ** 4
+        )
         self.pixel_angle: FloatArray = self.ray_angle(pixel_u)
 
     def ray_angle(self, u_px: FloatArray) -> FloatArray:

@@ -32,7 +32,8 @@ its top level (so ``catenary.measurement.vehicle.load_vehicle_geometry`` reads i
     full_well_e = 20000.0
     gain_dn_per_e = 0.01275            # grey levels per electron
     # optional: principal_point_px (default (pixels - 1) / 2), black_level_dn (0),
-    # lens_blur_px (0.35: aberrations, Gaussian sigma), prnu (0.005: pixel gain spread)
+    # lens_blur_px (0.35: aberrations, Gaussian sigma), prnu (0.005: pixel gain spread),
+    # exposure (1.0: the exposure time relative to the radiometry's unit exposure)
 
 Every length is in the unit its name says. The true camera model of each camera is
 ``camera_from_pose`` of its mounting (focal length over pixel pitch in pixels).
@@ -82,6 +83,7 @@ _CAMERA_OPTIONAL: dict[str, float] = {
     "black_level_dn": 0.0,
     "lens_blur_px": 0.35,
     "prnu": 0.005,
+    "exposure": 1.0,
 }
 _POSITIVE = {
     "pixels",
@@ -100,7 +102,9 @@ class SimCamera:
     """One simulated line-scan camera: mounting, lens and sensor.
 
     Lengths in [mm] unless the name says otherwise; ``tilt_deg`` is the optical axis from
-    vertical, positive toward ``+x``; ``gain_dn_per_e`` converts electrons to grey levels.
+    vertical, positive toward ``+x``; ``gain_dn_per_e`` converts electrons to grey levels;
+    ``exposure`` scales the electrons collected (the exposure time relative to the unit of
+    :mod:`.radiometry`).
     """
 
     name: str
@@ -121,6 +125,7 @@ class SimCamera:
     black_level_dn: float = 0.0
     lens_blur_px: float = 0.35
     prnu: float = 0.005
+    exposure: float = 1.0
 
     @property
     def focal_px(self) -> float:
@@ -252,6 +257,8 @@ def _parse_camera(table: Any, index: int, path: object) -> SimCamera:
         raise FormatError(path, f"key {where}name must be a non-empty name without '/'")
     if not 1 <= values["bit_depth"] <= 16:
         raise FormatError(path, f"key {where}bit_depth must be 1-16, got {values['bit_depth']}")
+    if values["exposure"] <= 0:
+        raise FormatError(path, f"key {where}exposure must be positive")
     if values["read_noise_e"] < 0:
         raise FormatError(path, f"key {where}read_noise_e must not be negative")
     if values["focus_distance_mm"] <= 2 * values["focal_length_mm"]:

@@ -17,9 +17,12 @@ validated like a file and its TOML text (``SimRig.text``) reproduces it:
   barrel distortion (``k1`` 0 to -0.02) and a principal point up to 0.2 % of the line off
   its middle; the mounting drawing (``SimCamera.nominal_model``) knows neither.
 - **Sensor**: the demo rig's (20 e- read noise, 20,000 e- full well); the gain fills the
-  bit depth's range at the full well at f/8 and is raised by ``(N / 8)²`` for a smaller
-  aperture (the operator sets the gain so that the lines look alike), black level 2 DN at
-  8 bits.
+  bit depth's range at the full well at f/8. The operator makes the lines look alike
+  whatever the aperture: for a smaller one (``N > 8``) the gain is raised by ``(N / 8)²``,
+  for a larger one the exposure time is shortened by that factor (the gain cannot go below
+  the full well's filling the range without the sensor saturating below the range's top,
+  where the processor cannot tell a clipped face from a lit one). Black level 2 DN at 8
+  bits.
 - **Lamps**: the demo rig's three blue strobes behind band-pass filters.
 """
 
@@ -142,7 +145,8 @@ def generate_rig(
                 "bit_depth": bit_depth,
                 "read_noise_e": READ_NOISE_E,
                 "full_well_e": FULL_WELL_E,
-                "gain_dn_per_e": max_dn / FULL_WELL_E * (f_number / 8.0) ** 2,
+                "gain_dn_per_e": max_dn / FULL_WELL_E * max(f_number / 8.0, 1.0) ** 2,
+                "exposure": min(f_number / 8.0, 1.0) ** 2,
                 "black_level_dn": 2.0 * (max_dn + 1) / 256.0,
                 "principal_point_px": round(
                     (pixels - 1) / 2.0 + rng.uniform(-0.002, 0.002) * pixels, 2
