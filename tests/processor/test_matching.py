@@ -96,6 +96,24 @@ def features_from_truth(chunk: Chunk, names: list[str], rng: np.random.Generator
     return out, wire_of
 
 
+def dark_silhouettes(scan: np.ndarray, *centres: np.ndarray) -> Features:
+    """Dark silhouettes 20 px wide, no face, at ``centres`` (each ``(n,)``) of ``scan``."""
+    u = np.concatenate(centres)
+    s = np.concatenate([scan] * len(centres))
+    order = np.lexsort((u, s))
+    nan = np.full(u.shape, np.nan)
+    return Features(
+        s[order],
+        u[order],
+        u[order] - 10,
+        u[order] + 10,
+        nan,
+        nan,
+        np.full(u.shape, 0.4),
+        -np.ones(u.shape, np.int8),
+    )
+
+
 @pytest.fixture(scope="module")
 def rig_cameras() -> tuple[list[str], list[LineScanCamera]]:
     rig = load_rig(DEMO_RIG_PATH)
@@ -310,19 +328,7 @@ def test_a_wire_in_line_with_its_messenger(rig_cameras) -> None:
         elif c == 3:  # this camera misses the wire
             table = Features(s, u_m, u_m - 8, u_m + 8, nan, nan, np.full(n, 0.4), -one)
         else:
-            both = np.concatenate([u_w, u_m])
-            ss = np.concatenate([s, s])
-            order = np.lexsort((both, ss))
-            table = Features(
-                ss[order],
-                both[order],
-                both[order] - 10,
-                both[order] + 10,
-                np.full(2 * n, np.nan),
-                np.full(2 * n, np.nan),
-                np.full(2 * n, 0.4),
-                -np.ones(2 * n, np.int8),
-            )
+            table = dark_silhouettes(s, u_w, u_m)
         features.append(table)
     matches = verified(cameras, pad_candidates(features, n), sigma())
     near_wire = np.hypot(matches.x_mm - x_wire[0], matches.z_mm - z_wire[0]) < 1.0
@@ -363,20 +369,7 @@ def test_a_wire_nearly_in_line_with_its_messenger_keeps_its_other_cameras(rig_ca
             nan = np.full(n, np.nan)
             table = Features(s, u, u - 12, u + 12, nan, nan, np.full(n, 0.5), -np.ones(n, np.int8))
         else:
-            both = np.concatenate([u_w, u_m])
-            ss = np.concatenate([s, s])
-            order = np.lexsort((both, ss))
-            nan = np.full(2 * n, np.nan)
-            table = Features(
-                ss[order],
-                both[order],
-                both[order] - 10,
-                both[order] + 10,
-                nan,
-                nan,
-                np.full(2 * n, 0.4),
-                -np.ones(2 * n, np.int8),
-            )
+            table = dark_silhouettes(s, u_w, u_m)
         features.append(table)
     matches = verified(cameras, pad_candidates(features, n), sigma())
     near_wire = np.hypot(matches.x_mm - x_wire[0], matches.z_mm - z_wire[0]) < 1.0

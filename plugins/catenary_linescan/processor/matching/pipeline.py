@@ -16,10 +16,10 @@ from catenary_linescan.triangulation import triangulate
 
 from .candidates import Candidates
 from .config import MatchConfig
-from .geometry import _gather, _Geometry, _pinhole, _undistort
+from .geometry import _Geometry, _pinhole, _undistort
 from .hypotheses import _covering_pairs, _enumerate, _Hypotheses
 from .resolve import _resolve
-from .triangulate import _PROFILE_SPREAD, Matches, _image_points, _triangulate_matches
+from .triangulate import _PROFILE_SPREAD, Matches, _edges, _image_points, _triangulate_matches
 
 
 def match(
@@ -169,14 +169,8 @@ def _two_view_agreement(
     two = np.flatnonzero(hypotheses.count == 2)
     if not two.shape[0]:
         return hypotheses
-    scan, slot = hypotheses.scan[two], hypotheses.slot[two]
-    left, right, face_left, face_right = _gather(
-        scan,
-        slot,
-        candidates.left_px,
-        candidates.right_px,
-        candidates.face_left_px,
-        candidates.face_right_px,
+    left, right, face_left, face_right = _edges(
+        candidates, hypotheses.scan[two], hypotheses.slot[two]
     )
     pinholes = [_pinhole(camera) for camera in cameras]
     _, ideal = _image_points(cameras, left, right, face_left, face_right, config)

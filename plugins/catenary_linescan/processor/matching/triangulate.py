@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from catenary.arrays import BoolArray, FloatArray, IntArray
 from catenary_linescan.camera import LineScanCamera
-from catenary_linescan.triangulation import triangulate
+from catenary_linescan.triangulation import TriangulationResult, triangulate
 
 from .candidates import Candidates
 from .config import MatchConfig
@@ -84,6 +84,20 @@ def _put(values: FloatArray, rows: NDArray[np.intp], new: FloatArray) -> FloatAr
     return out
 
 
+def _again(
+    result: TriangulationResult, rows: NDArray[np.intp], again: TriangulationResult
+) -> TriangulationResult:
+    """``result`` with its ``rows`` triangulated ``again`` (from fewer cameras)."""
+    return replace(
+        result,
+        x_mm=_put(result.x_mm, rows, again.x_mm),
+        z_mm=_put(result.z_mm, rows, again.z_mm),
+        rms_reprojection_px=_put(result.rms_reprojection_px, rows, again.rms_reprojection_px),
+        sigma_x_mm=_put(result.sigma_x_mm, rows, again.sigma_x_mm),
+        sigma_z_mm=_put(result.sigma_z_mm, rows, again.sigma_z_mm),
+    )
+
+
 _SILHOUETTE_SLACK_PX = 1.5
 """A bare wire's silhouette may read this much wider than the wire [px]: its two edges'
 noise and the blur's asymmetry on a round outline."""
@@ -117,6 +131,20 @@ def _bare_silhouettes(
         own_mm = (1.0 + _PROFILE_SPREAD) * _row_median(width_mm)
         limit_mm = np.fmin(own_mm, max_width_mm)[:, np.newaxis]
         return width_mm <= limit_mm + _SILHOUETTE_SLACK_PX / px_per_mm
+
+
+def _edges(candidates: Candidates, scan: IntArray, slot: IntArray) -> list[FloatArray]:
+    """The silhouette's and the face's edges [px] each camera gives the points of ``scan``
+    from its candidates ``slot``: ``left, right, face_left, face_right``, each ``(m, C)``,
+    NaN where a camera gives none."""
+    return _gather(
+        scan,
+        slot,
+        candidates.left_px,
+        candidates.right_px,
+        candidates.face_left_px,
+        candidates.face_right_px,
+    )
 
 
 def _image_points(
@@ -162,14 +190,7 @@ def _triangulate_matches(
     built from moves the hypothesis, and the other cameras can still fall in their windows
     of it; at the least-squares point the outlier's error is shared among all the cameras.
     """
-    left, right, face_left, face_right = _gather(
-        scan,
-        slot,
-        candidates.left_px,
-        candidates.right_px,
-        candidates.face_left_px,
-        candidates.face_right_px,
-    )
+    left, right, face_left, face_right = _edges(candidates, scan, slot)
     sigma = float(np.sqrt(np.mean(sigma_px**2))) if sigma_px.size else 0.1
     pinholes = [_pinhole(camera) for camera in cameras]
     from_face, ideal = _image_points(cameras, left, right, face_left, face_right, config)
@@ -201,15 +222,7 @@ def _triangulate_matches(
         from_face[rows], ideal[rows] = _image_points(
             cameras, left, right, face_left, face_right, config
         )
-        again = triangulate(pinholes, ideal[rows], sigma_px=sigma)
-        result = replace(
-            result,
-            x_mm=_put(result.x_mm, rows, again.x_mm),
-            z_mm=_put(result.z_mm, rows, again.z_mm),
-            rms_reprojection_px=_put(result.rms_reprojection_px, rows, again.rms_reprojection_px),
-            sigma_x_mm=_put(result.sigma_x_mm, rows, again.sigma_x_mm),
-            sigma_z_mm=_put(result.sigma_z_mm, rows, again.sigma_z_mm),
-        )
+        result = _again(result, rows, triangulate(pinholes, ideal[rows], sigma_px=sigma))
     window = np.maximum(config.confirm_sigmas * sigma_px, config.floor_px)[np.newaxis, :]
     # leave-one-out, linearised: camera i's residual at the point the others give is
     # r_i / (1 - h_i), h_i = j_iᵀ (JᵀJ)⁻¹ j_i its leverage (j_i its row of the Jacobian)
@@ -240,15 +253,7 @@ def _triangulate_matches(
         slot = slot.copy()
         slot[rows, worst] = -1
         ideal[rows, worst] = np.nan
-        again = triangulate(pinholes, ideal[rows], sigma_px=sigma)
-        result = replace(
-            result,
-            x_mm=_put(result.x_mm, rows, again.x_mm),
-            z_mm=_put(result.z_mm, rows, again.z_mm),
-            rms_reprojection_px=_put(result.rms_reprojection_px, rows, again.rms_reprojection_px),
-            sigma_x_mm=_put(result.sigma_x_mm, rows, again.sigma_x_mm),
-            sigma_z_mm=_put(result.sigma_z_mm, rows, again.sigma_z_mm),
-        )
+        result = _again(result, rows, triangulate(pinholes, ideal[rows], sigma_px=sigma))
     return Matches(
         scan=scan,
         slot=slot,
