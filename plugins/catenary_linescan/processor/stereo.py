@@ -61,6 +61,7 @@ from catenary_linescan.rig import Rig, read_rig
 
 from .features import FeatureConfig, extract_features
 from .matching import (
+    CONTACT_WIRE_WIDTH_MM,
     MatchConfig,
     Matches,
     camera_sigmas_px,
@@ -74,10 +75,6 @@ from .tracking import TrackedPoints, TrackingConfig, WireTracker
 __all__ = ["LineScanProcessor", "ProcessorConfig", "create", "empty_observations"]
 
 log = logging.getLogger(__name__)
-
-CONTACT_WIRE_WIDTH_MM = (10.6, 14.8)
-"""Narrowest and widest contact wire the features look for: EN 50149 AC-80 to AC-150 and
-TB/T 2809 85 to 150 (``reference/wire-profiles.md``)."""
 
 
 @dataclass(frozen=True)

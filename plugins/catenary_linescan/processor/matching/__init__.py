@@ -63,13 +63,14 @@ the cameras' models in arrays that the steps share.
 """
 
 from .candidates import Candidates, FeatureTable, camera_sigmas_px, pad_candidates
-from .config import MatchConfig
+from .config import CONTACT_WIRE_WIDTH_MM, MatchConfig
 from .face_widths import FaceWidths, face_widths_mm, lit_chord_mm
 from .hypotheses import covering_pairs
 from .pipeline import match
 from .triangulate import Matches
 
 __all__ = [
+    "CONTACT_WIRE_WIDTH_MM",
     "Candidates",
     "FaceWidths",
     "FeatureTable",

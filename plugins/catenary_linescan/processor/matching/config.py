@@ -4,6 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+CONTACT_WIRE_WIDTH_MM = (10.6, 14.8)
+"""Narrowest and widest contact wire the features look for: EN 50149 AC-80 to AC-150 and
+TB/T 2809 85 to 150 (``reference/wire-profiles.md``)."""
+
 
 @dataclass(frozen=True)
 class MatchConfig:
@@ -41,7 +45,7 @@ class MatchConfig:
         they continue a wire.
     max_wire_width_mm : float
         The widest wire [mm]: a silhouette wider than that (a clamp on the wire, objects in
-        line) gives no axis (step 5).
+        line) gives no axis (step 5). The processor sets it from its ``wire_width_mm``.
     min_separation_mm : float
         Two points of one scan closer than this are one wire seen twice; the weaker goes
         (:func:`.pipeline._separate`). Wires are 11-15 mm thick: two closer than this touch.
@@ -59,7 +63,7 @@ class MatchConfig:
     support_merged: bool = True
     covering_pairs: bool = True
     two_view: bool = True
-    max_wire_width_mm: float = 14.8
+    max_wire_width_mm: float = CONTACT_WIRE_WIDTH_MM[1]
     min_separation_mm: float = 30.0
 
     def cameras_needed(self, cameras: int) -> int:

@@ -199,16 +199,19 @@ def _triangulate_matches(
     # is a clamp on the wire or objects in line: its middle is not the wire's, nor is a
     # face reaching its edges (a worn face clear inside it is; a lit wire's extent is not
     # its outline: not judged)
-    (polarity,) = _gather(scan, slot, candidates.polarity.astype(np.float64))
-    dark = polarity < 0
-    wide = dark & ~_bare_silhouettes(
-        pinholes,
-        np.where(dark, left, np.nan),
-        np.where(dark, right, np.nan),
-        result.x_mm,
-        result.z_mm,
-        config.max_wire_width_mm,
-    )
+    cameras_index = np.arange(slot.shape[1])
+    polarity = candidates.polarity[scan[:, np.newaxis], cameras_index, np.maximum(slot, 0)]
+    dark = (slot >= 0) & (polarity < 0)
+    wide = np.zeros(dark.shape, dtype=bool)
+    if dark.any():  # none at night or behind the filter
+        wide = dark & ~_bare_silhouettes(
+            pinholes,
+            np.where(dark, left, np.nan),
+            np.where(dark, right, np.nan),
+            result.x_mm,
+            result.z_mm,
+            config.max_wire_width_mm,
+        )
     with np.errstate(invalid="ignore"):
         clear = (face_left - left > _SILHOUETTE_SLACK_PX) & (
             right - face_right > _SILHOUETTE_SLACK_PX
