@@ -28,7 +28,7 @@ from collections import Counter
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
-from sqlalchemy import create_engine, func, insert, select
+from sqlalchemy import bindparam, create_engine, func, insert, select, update
 from sqlalchemy.engine import Connection, make_url
 
 from catenary.maintenance.alerts import evaluate_alerts
@@ -39,12 +39,15 @@ from catenary.storage.models import (
     Alert,
     Line,
     Mast,
+    Processing,
     RigCalibration,
     Run,
     SpanMeasurement,
     Track,
     Vehicle,
+    run_uuid,
 )
+from catenary.storage.runs import settings_sha256
 
 SECTION_SPANS = 25
 """Spans per anchor section; the last one of each is an overlap."""
@@ -53,9 +56,11 @@ FIRST_RUN = datetime(2018, 1, 8, 9, 0, tzinfo=UTC)
 RUN_EVERY = timedelta(days=52)
 POLICY = "china-maintenance-rules"
 WIRE_TYPE = "CTA120"
+RIG_SHA256 = "0" * 64
 
 _SPAN_COLUMNS = (
     ("run_id", "i4"),
+    ("processing_id", "i4"),
     ("track_id", "i4"),
     ("span", "i4"),
     ("mast_from", "S4"),
@@ -142,7 +147,7 @@ def build_runs(connection: Connection, track_ids: list[int], runs: int) -> np.nd
             version=1,
             created_at=FIRST_RUN,
             content_toml="",
-            sha256="0" * 64,
+            sha256=RIG_SHA256,
         )
         .returning(RigCalibration.id)
     ).scalar_one()
@@ -152,20 +157,20 @@ def build_runs(connection: Connection, track_ids: list[int], runs: int) -> np.nd
     for k, track_id in enumerate(track_ids):
         for j in range(runs):
             started = FIRST_RUN + j * RUN_EVERY + timedelta(hours=float(rng.uniform(0, 24 * 10)))
+            source = f"{k * runs + j:064x}"
             rows.append(
                 {
+                    "uuid": run_uuid(source, RIG_SHA256),
                     "line_id": line_of[track_id],
                     "track_id": track_id,
                     "direction": "increasing" if j % 2 == 0 else "decreasing",
                     "vehicle_id": vehicle,
                     "rig_calibration_id": calibration,
                     "source_file": f"/fleet/{k}/{j}.h5",
-                    "source_sha256": f"{k * runs + j:064x}",
-                    "wire_type": None,
+                    "source_sha256": source,
+                    "rig_sha256": RIG_SHA256,
                     "started_at": started,
-                    "processed_at": started,
                     "scans": 0,
-                    "length_m": 0.0,
                     "status": "complete",
                 }
             )
@@ -173,13 +178,41 @@ def build_runs(connection: Connection, track_ids: list[int], runs: int) -> np.nd
     found = connection.execute(
         select(Run.track_id, Run.id, Run.started_at).order_by(Run.track_id, Run.started_at)
     ).all()
+    made = connection.execute(
+        insert(Processing).returning(
+            Processing.id, Processing.run_id, sort_by_parameter_order=True
+        ),
+        [
+            {
+                "uuid": str(uuid.uuid4()),
+                "run_id": r.id,
+                "processor": "linescan-stereo",
+                "package_version": "benchmark",
+                "settings_sha256": settings_sha256(None),
+                "rig_calibration_id": calibration,
+                "processed_at": r.started_at,
+                "length_m": 0.0,
+            }
+            for r in found
+        ],
+    ).all()
+    connection.execute(
+        update(Run).where(Run.id == bindparam("run")).values(processing_id=bindparam("made")),
+        [{"run": run_id, "made": processing_id} for processing_id, run_id in made],
+    )
     return np.array([r.id for r in found], dtype=np.int64).reshape(len(track_ids), runs)
 
 
 def _track_rows(
-    track_id: int, run_ids: np.ndarray, started_years: np.ndarray, chainage: np.ndarray, seed: int
+    track_id: int,
+    run_ids: np.ndarray,
+    processing_ids: np.ndarray,
+    started_years: np.ndarray,
+    chainage: np.ndarray,
+    seed: int,
 ) -> np.ndarray:
-    """The span measurement rows of one track, every run, as binary COPY rows."""
+    """The span measurement rows of one track, every run (and its processing), as binary
+    COPY rows."""
     rng = np.random.default_rng(seed)
     spans = chainage.shape[0] - 1
     sections = (spans + SECTION_SPANS - 1) // SECTION_SPANS
@@ -206,6 +239,7 @@ def _track_rows(
     thickness = np.maximum(thickness, 7.0)
     decreasing = (np.arange(runs) % 2 == 1)[:, None]
     rows["run_id"] = np.repeat(run_ids, k)
+    rows["processing_id"] = np.repeat(processing_ids, k)
     rows["track_id"] = track_id
     rows["span"] = np.tile(span, runs)
     rows["mast_from"] = np.tile(_code(span), runs)
@@ -235,6 +269,7 @@ def build_measurements(
 ) -> int:
     """Every span measurement, through one binary COPY; returns the rows written."""
     started = dict(connection.execute(select(Run.id, Run.started_at)).all())
+    processing = dict(connection.execute(select(Run.id, Run.processing_id)).all())
     epoch = datetime(2000, 1, 1, tzinfo=UTC)
     raw = connection.connection.driver_connection
     assert raw is not None
@@ -247,7 +282,8 @@ def build_measurements(
             years = np.array(
                 [(started[int(r)] - epoch).total_seconds() / 31_557_600.0 for r in run_ids[k]]
             )
-            rows = _track_rows(track_id, run_ids[k], years, chainage, seed=100 + k)
+            made = np.array([processing[int(r)] for r in run_ids[k]], dtype=np.int64)
+            rows = _track_rows(track_id, run_ids[k], made, years, chainage, seed=100 + k)
             copy.write(rows.tobytes())
             written += rows.shape[0]
         copy.write(b"\xff\xff")  # end of data

@@ -31,12 +31,18 @@ from catenary.storage.models import (
     Alert,
     Line,
     Mast,
+    Processing,
     RigCalibration,
     Run,
     SpanMeasurement,
     Track,
     Vehicle,
+    run_uuid,
 )
+from catenary.storage.runs import settings_sha256
+
+PROCESSING_COLUMNS = frozenset(Processing.__table__.c.keys()) - {"id", "run_id", "uuid"}
+"""The columns ``Build.run`` gives to the run's processing."""
 
 
 @pytest.fixture(autouse=True)
@@ -195,14 +201,41 @@ class Build:
             "started_at": T0,
         }
         values.update(columns)
-        run = Run(**values)
+        made = {name: values.pop(name) for name in list(values) if name in PROCESSING_COLUMNS}
+        run = Build.identified_run(**values)
+        run.processing = Build.processing(run, **made)
         session.add(run)
         session.flush()
         return run
 
     @staticmethod
+    def identified_run(**columns: Any) -> Run:
+        """A ``Run`` of these columns, its identity (``rig_sha256``, ``uuid``) from its
+        source and its rig calibration unless given."""
+        columns.setdefault("rig_sha256", columns["rig_calibration"].sha256)
+        columns.setdefault("uuid", run_uuid(columns["source_sha256"], columns["rig_sha256"]))
+        return Run(**columns)
+
+    @staticmethod
+    def processing(run: Run, **columns: Any) -> Processing:
+        """A processing of ``run`` (of its rig calibration), valid by default."""
+        values: dict[str, Any] = {
+            "run": run,
+            "uuid": str(uuid.uuid4()),
+            "processor": "linescan-stereo",
+            "package_version": "test",
+            "settings": {},
+            "settings_sha256": settings_sha256({}),
+            "rig_calibration": run.rig_calibration,
+            "processed_at": run.started_at,
+        }
+        values.update(columns)
+        return Processing(**values)
+
+    @staticmethod
     def span(run: Run | None, number: int = 0, **columns: Any) -> SpanMeasurement:
-        values: dict[str, Any] = {} if run is None else {"run": run}
+        """A span measurement of the run's latest processing."""
+        values: dict[str, Any] = {} if run is None else {"run": run, "processing": run.processing}
         values |= {
             "span": number,
             "mast_from": "M1",

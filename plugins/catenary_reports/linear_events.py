@@ -107,7 +107,7 @@ def _runs(session: Session, request: Request) -> list[Run]:
 def _events(session: Session, run: Run) -> pa.Table:
     spans = session.scalars(
         select(SpanMeasurement)
-        .where(SpanMeasurement.run_id == run.id)
+        .where(SpanMeasurement.processing_id == run.processing_id)
         .order_by(SpanMeasurement.start_chainage_m, SpanMeasurement.wire)
     )
     rows: list[dict[str, Any]] = []

@@ -172,7 +172,7 @@ def _track(session: Session, line: str, track: Track) -> _Track:
     if latest is not None:
         wires: dict[tuple[float, float], set[int]] = {}
         for s in session.scalars(
-            select(SpanMeasurement).where(SpanMeasurement.run_id == latest.id)
+            select(SpanMeasurement).where(SpanMeasurement.processing_id == latest.processing_id)
         ):
             wires.setdefault((s.start_chainage_m, s.end_chainage_m), set()).add(s.wire)
         overlaps = sorted(k for k, v in wires.items() if len(v) > 1)

@@ -23,7 +23,7 @@ from catenary.measurement.samples import export_table, run_profile
 from catenary.plugins import ReportRequest
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Run
-from catenary.storage.runs import find_run
+from catenary.storage.runs import find_run, latest_processing
 from catenary_reports import html
 from catenary_reports.plots import (
     PLOT_COLUMNS,
@@ -84,7 +84,7 @@ def _run_facts(run: Run) -> list[str]:
         f"{run.direction} chainage",
         run.vehicle.name,
         f"{rig.name} version {rig.version}",
-        f"{run.length_m:.1f} m",
+        f"{latest_processing(run).length_m:.1f} m",
     ]
 
 

@@ -37,7 +37,7 @@ from catenary.measurement.spans import SPAN_COLUMNS, SPAN_SCHEMA
 from catenary.plugins import PluginRegistry, ReportRequest
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Run, SpanMeasurement
-from catenary.storage.runs import find_run
+from catenary.storage.runs import find_run, latest_processing
 from catenary_reports import html
 from catenary_reports.html import Cell, number
 from catenary_reports.plots import (
@@ -118,6 +118,7 @@ def _span_cells(s: SpanMeasurement) -> list[Cell | str]:
 
 def _facts(run: Run, spans: Sequence[SpanMeasurement], extent: _Extent) -> list[tuple[str, str]]:
     rig = run.rig_calibration
+    processing = latest_processing(run)
     line = run.line.code + (f" ({run.line.name})" if run.line.name else "")
     if any(s.mast_from for s in spans):
         first = min(spans, key=lambda s: s.start_chainage_m)
@@ -130,13 +131,13 @@ def _facts(run: Run, spans: Sequence[SpanMeasurement], extent: _Extent) -> list[
         if extent.samples
         else "no samples"
     )
-    if run.chainage_aligned:
+    if processing.chainage_aligned:
         chainage += (
-            f"; aligned to the register through {run.alignment_matched} registration points "
-            f"(residual RMS {run.alignment_rms_m:.2f} m, encoder error "
-            f"{1.0 / (run.encoder_scale or 1.0) - 1.0:+.3%})"
+            f"; aligned to the register through {processing.alignment_matched} registration points "
+            f"(residual RMS {processing.alignment_rms_m:.2f} m, encoder error "
+            f"{1.0 / (processing.encoder_scale or 1.0) - 1.0:+.3%})"
         )
-    elif run.chainage_aligned is not None:
+    elif processing.chainage_aligned is not None:
         chainage += "; start chainage + encoder distance (not aligned to a register)"
     samples = f"{extent.rows} in {extent.path.name}"
     left_out = [
@@ -150,19 +151,24 @@ def _facts(run: Run, spans: Sequence[SpanMeasurement], extent: _Extent) -> list[
     if left_out:
         samples += f" ({', '.join(left_out)}: left out)"
     return [
-        ("Run", f"{run.id} ({run.status})"),
+        ("Run", f"{run.id} ({run.status}), UUID {run.uuid}"),
         ("Line", line),
         ("Track", run.track.code if run.track else "-"),
         ("Direction", f"{run.direction} chainage"),
         ("Date", html.stamp(run.started_at)),
-        ("Processed", html.stamp(run.processed_at)),
+        (
+            "Processed",
+            f"{html.stamp(processing.processed_at)} by {processing.processor} "
+            f"(catenary {processing.package_version}, settings SHA-256 "
+            f"{processing.settings_sha256[:12]}; processing {processing.uuid})",
+        ),
         ("Vehicle", run.vehicle.name),
         (
             "Rig calibration",
             f"{rig.name} version {rig.version} (SHA-256 {rig.sha256[:12]}, "
             f"{html.stamp(rig.created_at)})",
         ),
-        ("Length", f"{run.length_m:.1f} m, {run.scans} scans"),
+        ("Length", f"{processing.length_m:.1f} m, {run.scans} scans"),
         ("Chainage", chainage),
         ("Spans", f"{len({s.span for s in spans})} ({len(spans)} span-wires), cut {cut}"),
         ("Wire types", ", ".join(sorted({s.wire_type for s in spans})) or "-"),

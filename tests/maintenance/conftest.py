@@ -3,6 +3,7 @@ masts and of runs over them with chosen span minima."""
 
 from __future__ import annotations
 
+import uuid
 from collections.abc import Mapping, Sequence
 from datetime import UTC, datetime, timedelta
 from itertools import count
@@ -15,12 +16,15 @@ from catenary.storage.models import (
     Alert,
     Line,
     Mast,
+    Processing,
     RigCalibration,
     Run,
     SpanMeasurement,
     Track,
     Vehicle,
+    run_uuid,
 )
+from catenary.storage.runs import settings_sha256
 
 T0 = datetime(2020, 1, 6, 9, 0, tzinfo=UTC)
 YEAR = timedelta(days=365.25)
@@ -104,17 +108,28 @@ class Fleet:
         codes: list[str | None] = [m.code for m in masts] or [None] * len(at_m)
         chosen = list(range(len(at_m) - 1)) if spans is None else list(spans)
         minimum_mm, overlap, mean_mm = minimum_mm or {}, overlap or {}, mean_mm or {}
+        source = f"{next(_sources):064x}"
         run = Run(
+            uuid=run_uuid(source, self.calibration.sha256),
+            rig_sha256=self.calibration.sha256,
             line=track.line,
             track=track,
             direction=direction,
             vehicle=self.calibration.vehicle,
             rig_calibration=self.calibration,
             source_file=f"/runs/{when:%Y%m%d}.h5",
-            source_sha256=f"{next(_sources):064x}",
-            wire_type=None,
+            source_sha256=source,
             started_at=when,
             status="complete",
+        )
+        run.processing = Processing(
+            run=run,
+            uuid=str(uuid.uuid4()),
+            processor="linescan-stereo",
+            package_version="test",
+            settings_sha256=settings_sha256(None),
+            rig_calibration=self.calibration,
+            processed_at=when,
         )
         sign = 1.0 if direction == "increasing" else -1.0
         swap = int(direction == "decreasing")  # the other way, the other wire comes first
@@ -145,7 +160,7 @@ class Fleet:
                         samples=1000,
                     )
                 )
-        run.span_measurements = rows
+        run.processing.span_measurements = rows
         self.session.add(run)
         self.session.flush()
         return run

@@ -37,6 +37,7 @@ from catenary.domain import WireObservations
 from catenary.measurement.process import (
     LEGACY_SCRATCH_AGE_S,
     database_fingerprint,
+    file_sha256,
     remove_abandoned_scratch,
 )
 from catenary.measurement.runfile import RunFileWarning
@@ -45,7 +46,7 @@ from catenary.measurement.spans import SPAN_COLUMNS
 from catenary.plugins import PluginRegistry, Processor, hookimpl
 from catenary.storage import migrate
 from catenary.storage.database import make_engine, session_scope
-from catenary.storage.models import Mast, Run, SpanMeasurement
+from catenary.storage.models import Mast, Run, SpanMeasurement, run_uuid
 from catenary_linescan.simulator import DEMO_RIG_PATH, load_rig, record_run
 from catenary_linescan.simulator.captures import write_captures
 
@@ -131,8 +132,8 @@ def stored(database: str) -> tuple[int, int]:
 def samples_of(database: str, data_dir: Path, run_id: int) -> dict[str, np.ndarray]:
     with Session(create_engine(database)) as session:
         run = session.get(Run, run_id)
-        assert run is not None and run.samples_path
-        table = pq.read_table(data_dir / run.samples_path)
+        assert run is not None and run.processing is not None and run.processing.samples_key
+        table = pq.read_table(data_dir / run.processing.samples_key)
     return {name: table.column(name).to_numpy() for name in table.column_names}
 
 
@@ -170,7 +171,10 @@ def test_a_run_is_stored_with_its_spans_and_samples_against_the_truth(
 ) -> None:
     result = process(simulated, database)
     assert result.exit_code == 0, result.output
-    assert result.output.strip().splitlines()[-1] == "stored as run 1"
+    assert re.fullmatch(
+        r"stored as run 1 \(UUID [0-9a-f-]{36}\), processing [0-9a-f-]{36}",
+        result.output.strip().splitlines()[-1],
+    )
     assert "aligned to the register" in result.output
     with Session(create_engine(database)) as session:
         run = session.get(Run, 1)
@@ -178,9 +182,18 @@ def test_a_run_is_stored_with_its_spans_and_samples_against_the_truth(
         assert (run.line.code, run.track.code if run.track else None) == ("demo-line", "1")
         assert run.status == "complete" and run.vehicle.name == "demo-rig"
         assert run.rig_calibration.version == 1
-        assert run.chainage_aligned and run.alignment_matched and run.alignment_matched >= 3
+        assert run.uuid == run_uuid(file_sha256(simulated.run), file_sha256(simulated.rig))
+        assert run.uuid in result.output
+        made = run.processing
+        assert made is not None and made.processor == "linescan-stereo"
+        assert made.settings == {
+            "processor_options": {},
+            "vehicle_filter_hz": 5.0,
+            "wire_type": None,
+        }
+        assert made.chainage_aligned and made.alignment_matched and made.alignment_matched >= 3
         # chainage per encoder metre: the encoder reads the simulated 0.4 % long
-        assert run.encoder_scale == pytest.approx(1 / 1.004, abs=0.001)
+        assert made.encoder_scale == pytest.approx(1 / 1.004, abs=0.001)
         masts = {m.code: m.chainage_m for m in session.scalars(select(Mast))}
         spans = list(run.span_measurements)
     samples = samples_of(database, isolated_environment, 1)
@@ -256,10 +269,22 @@ def test_processing_twice_says_so_and_replace_replaces(
     (old_file,) = (isolated_environment / "samples").iterdir()
     replaced = process(simulated, database, "--replace")
     assert replaced.exit_code == 0, replaced.output
-    assert replaced.output.strip().splitlines()[-1] == "stored as run 1"  # the same run
-    assert stored(database) == first
-    (new_file,) = (isolated_environment / "samples").iterdir()
-    assert new_file != old_file and new_file.name.startswith("run-1-")
+    assert replaced.output.strip().splitlines()[-1].startswith("stored as run 1 ")  # the same
+    # a new processing, the one seen; the first is kept as it was, unseen
+    with Session(create_engine(database)) as session:
+        run = session.get_one(Run, 1)
+        first_processing, latest = run.processings
+        assert run.processing is latest
+        assert latest.processed_at > first_processing.processed_at
+        assert len(run.span_measurements) == first[1]
+        assert {s.processing_id for s in run.span_measurements} == {latest.id}
+        assert len(first_processing.span_measurements) == first[1]
+        assert first_processing.samples_key == f"samples/{old_file.name}"
+        new_key = latest.samples_key
+    assert stored(database) == (1, 2 * first[1])
+    files = sorted((isolated_environment / "samples").iterdir())
+    assert old_file in files and len(files) == 2
+    assert new_key is not None and (isolated_environment / new_key).is_file()
 
 
 def test_without_a_register_spans_come_from_the_turning_points(
@@ -504,7 +529,7 @@ def test_a_process_killed_while_it_stored_leaves_a_pair_the_next_one_resolves(
         os.link(placed, hidden)
         pairs[name] = (placed, hidden)
     with session_scope(engine) as session:
-        build.run(session, samples_path=f"samples/{pairs['committed'][0].name}")
+        build.run(session, samples_key=f"samples/{pairs['committed'][0].name}")
     assert remove_abandoned_scratch(folder) == []  # without the database: nothing to tell
     removed = remove_abandoned_scratch(folder, engine=engine)
     assert sorted(removed) == sorted([pairs["committed"][1], *pairs["not committed"]])
@@ -644,15 +669,14 @@ def test_ctrl_c_as_the_run_commits_keeps_its_samples_file_and_says_it_is_stored(
     assert result.exit_code == 130, result.output
     with Session(create_engine(database)) as session:
         (run,) = session.scalars(select(Run)).all()
+        key = run.processing.samples_key if run.processing else None
     assert result.output.strip().splitlines()[-1] == (
         f"interrupted: stored as run {run.id}, its alerts not evaluated "
         f"(catenary alerts evaluate --run {run.id})"
     )
-    assert run.samples_path is not None
-    assert (isolated_environment / run.samples_path).is_file()
-    assert [p.name for p in (isolated_environment / "samples").iterdir()] == [
-        Path(run.samples_path).name
-    ]
+    assert key is not None
+    assert (isolated_environment / key).is_file()
+    assert [p.name for p in (isolated_environment / "samples").iterdir()] == [Path(key).name]
 
 
 # -- runs that do not fit the rig, regions of interest, the recording state -----------------

@@ -70,7 +70,9 @@ def stored(database: Path, data_dir: Path) -> int | None:
     """The id of the run stored, after checking that all of it is (its span rows match its
     samples file); None if nothing of it is."""
     with sqlite3.connect(database) as connection:
-        runs = connection.execute("SELECT id, samples_path FROM runs").fetchall()
+        runs = connection.execute(
+            "SELECT runs.id, samples_key FROM runs JOIN processings p ON p.id = processing_id"
+        ).fetchall()
         spans, samples = connection.execute(
             "SELECT count(*), coalesce(sum(samples), 0) FROM span_measurements"
         ).fetchone()

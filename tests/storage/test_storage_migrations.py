@@ -19,8 +19,10 @@ from catenary.storage.models import (
     AlertNotification,
     Base,
     MaintenanceAction,
+    Processing,
     Run,
     SpanMeasurement,
+    run_uuid,
 )
 
 MODEL_TABLES = set(Base.metadata.tables)
@@ -39,6 +41,7 @@ def test_models_have_every_table_of_the_storage_sketch() -> None:
         "vehicles",
         "rig_calibrations",
         "runs",
+        "processings",
         "span_measurements",
         "alerts",
         "maintenance_actions",
@@ -204,3 +207,81 @@ def test_sqlite_batch_migration_keeps_the_rows_that_refer_to_a_rebuilt_table(
         assert session.scalar(sa.select(sa.func.count()).select_from(Run)) == 1
     with migrated.connect() as connection:
         assert connection.exec_driver_sql("PRAGMA foreign_keys").scalar() == 1
+
+
+def test_runs_become_their_first_processing_and_back(engine: Engine) -> None:
+    """Revision 6638ba43c1b6: a run stored before it gets its identity (the UUID
+    ``run_uuid`` gives) and a first processing holding what it measured; the downgrade puts
+    the latest processing back on the run and drops the others."""
+    migrate.upgrade(engine, "8b51c0d2e7a3")
+    statements = [
+        "INSERT INTO lines (id, code) VALUES (1, 'L1')",
+        "INSERT INTO tracks (id, line_id, code) VALUES (1, 1, '1')",
+        "INSERT INTO vehicles (id, name, roof_height_mm, sensor_height_mm, sensor_baseline_mm) "
+        "VALUES (1, 'v', 3900, 1100, 1800)",
+        "INSERT INTO rig_calibrations (id, vehicle_id, name, version, created_at, content_toml, "
+        f"sha256) VALUES (1, 1, 'rig', 1, '2024-05-06 07:00:00+00:00', '', '{'c' * 64}')",
+        "INSERT INTO runs (id, line_id, track_id, direction, vehicle_id, rig_calibration_id, "
+        "source_file, source_sha256, wire_type, started_at, processed_at, scans, length_m, "
+        "status, samples_path, chainage_aligned, alignment_matched) VALUES (7, 1, 1, "
+        f"'increasing', 1, 1, '/runs/a.h5', '{'f' * 64}', 'CTA120', "
+        "'2024-05-06 07:00:00+00:00', '2024-05-06 08:00:00+00:00', 100, 250.5, 'complete', "
+        "'samples/run-7-abc.parquet', true, 4)",
+        *(
+            "INSERT INTO span_measurements (run_id, track_id, span, wire, wire_type, "
+            "start_chainage_m, end_chainage_m, min_residual_thickness_mm, min_at_chainage_m, "
+            "mean_residual_thickness_mm, height_min_mm, height_max_mm, stagger_min_mm, "
+            f"stagger_max_mm, samples) VALUES (7, 1, {k}, 0, 'CTA120', {k * 50}, {k * 50 + 50}, "
+            "11, 1, 12, 5300, 5310, -200, 200, 10)"
+            for k in range(3)
+        ),
+    ]
+    with engine.begin() as connection:
+        for statement in statements:
+            connection.execute(sa.text(statement))
+    migrate.upgrade(engine)
+    with session_scope(engine) as session:
+        run = session.get_one(Run, 7)
+        processing = run.processing
+        assert processing is not None
+        assert run.uuid == run_uuid("f" * 64, "c" * 64)
+        assert run.rig_sha256 == "c" * 64
+        assert (processing.processor, processing.package_version) == ("unrecorded",) * 2
+        assert processing.samples_key == "samples/run-7-abc.parquet"
+        assert (processing.wire_type, processing.length_m) == ("CTA120", 250.5)
+        assert (processing.chainage_aligned, processing.alignment_matched) == (True, 4)
+        assert processing.processed_at.hour == 8
+        assert [s.span for s in run.span_measurements] == [0, 1, 2]
+        # a second processing of one span: the latest
+        second = Processing(
+            run=run,
+            uuid="second",
+            processor="linescan-stereo",
+            package_version="0.1.0",
+            settings_sha256="0" * 64,
+            rig_calibration=run.rig_calibration,
+            processed_at=processing.processed_at,
+            length_m=99.0,
+            samples_key="samples/second.parquet",
+        )
+        second.span_measurements = [
+            SpanMeasurement(**{**_span_columns(run.span_measurements[0]), "span": 5})
+        ]
+        session.add(second)
+        session.flush()
+        run.processing = second
+    with session_scope(engine) as session:
+        assert [s.span for s in session.get_one(Run, 7).span_measurements] == [5]
+    migrate.downgrade(engine, "8b51c0d2e7a3")
+    with engine.connect() as connection:
+        assert connection.execute(
+            sa.text("SELECT length_m, samples_path FROM runs WHERE id = 7")
+        ).one() == (99.0, "samples/second.parquet")
+        spans = connection.execute(sa.text("SELECT span FROM span_measurements")).scalars()
+        assert list(spans) == [5]
+
+
+def _span_columns(span: SpanMeasurement) -> dict[str, Any]:
+    """A span measurement's columns but its keys and owners."""
+    leave = {"id", "run_id", "processing_id", "track_id"}
+    return {c.key: getattr(span, c.key) for c in SpanMeasurement.__table__.c if c.key not in leave}

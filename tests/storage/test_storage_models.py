@@ -24,6 +24,7 @@ from catenary.storage.models import (
     SpanMeasurement,
     Track,
     Vehicle,
+    run_uuid,
 )
 
 
@@ -35,9 +36,13 @@ def count(engine: Engine, model: type[Any]) -> int:
 def test_round_trip(migrated: Engine, build: Any) -> None:
     cest = timezone(timedelta(hours=2))
     with session_scope(migrated) as session:
-        run = build.run(session, processed_at=datetime(2024, 5, 6, 11, 0, tzinfo=cest))
-        run.status, run.scans, run.length_m = "complete", 120_000, 3000.5
-        run.samples_path = "runs/1/samples.parquet"
+        run = build.run(
+            session,
+            processed_at=datetime(2024, 5, 6, 11, 0, tzinfo=cest),
+            length_m=3000.5,
+            samples_key="samples/run-1.parquet",
+        )
+        run.status, run.scans = "complete", 120_000
         session.add_all([build.span(run, 0), build.span(run, 0, wire=1), build.span(run, 1)])
         session.flush()
         action = MaintenanceAction(
@@ -79,18 +84,16 @@ def test_round_trip(migrated: Engine, build: Any) -> None:
         assert run.vehicle.sensor_baseline_mm == 1800.0
         assert run.rig_calibration.content_toml == 'name = "demo-rig"\n'
         assert run.rig_calibration.created_at == build.T0
-        assert (run.direction, run.status, run.scans, run.length_m) == (
-            "increasing",
-            "complete",
-            120_000,
-            3000.5,
-        )
+        assert (run.direction, run.status, run.scans) == ("increasing", "complete", 120_000)
+        processing = run.processing
+        assert processing is not None
+        assert (processing.length_m, processing.samples_key) == (3000.5, "samples/run-1.parquet")
+        assert run.uuid == run_uuid("f" * 64, "c" * 64)
         # times come back aware, in UTC, the same instant
         assert run.started_at == build.T0
         assert run.started_at.tzinfo is UTC
-        assert run.processed_at == datetime(2024, 5, 6, 9, 0, tzinfo=UTC)
-        assert run.processed_at is not None
-        assert run.processed_at.tzinfo is UTC
+        assert processing.processed_at == datetime(2024, 5, 6, 9, 0, tzinfo=UTC)
+        assert processing.processed_at.tzinfo is UTC
 
         spans = run.span_measurements
         assert [(s.span, s.wire) for s in spans] == [(0, 0), (0, 1), (1, 0)]
@@ -133,21 +136,41 @@ def test_same_alert_condition_is_refused(migrated: Engine, build: Any) -> None:
 
 
 def test_same_run_file_and_calibration_is_stored_once(migrated: Engine, build: Any) -> None:
+    """The identity is the content: the same file with the same calibration content is one
+    run, whatever vehicle or calibration row it comes with."""
     with session_scope(migrated) as session:
         run = build.run(session)
         again = {
             name: getattr(run, name)
-            for name in ("line_id", "track_id", "direction", "vehicle_id", "rig_calibration_id")
+            for name in ("line_id", "track_id", "direction", "vehicle_id", "rig_sha256")
         }
-    with pytest.raises(IntegrityError), session_scope(migrated) as session:
-        session.add(
-            Run(
-                **again,
-                source_file="/elsewhere/copy.h5",
-                source_sha256="f" * 64,
-                started_at=datetime.now(UTC),
-            )
+        other = RigCalibration(
+            vehicle=Vehicle(
+                name="other",
+                roof_height_mm=3900.0,
+                sensor_height_mm=1100.0,
+                sensor_baseline_mm=1800.0,
+            ),
+            name="demo",
+            version=1,
+            content_toml=run.rig_calibration.content_toml,
+            sha256=run.rig_sha256,
         )
+        session.add(other)
+        session.flush()
+        other_id = other.id
+    for uuid in (run_uuid("f" * 64, "c" * 64), "another"):
+        with pytest.raises(IntegrityError), session_scope(migrated) as session:
+            session.add(
+                Run(
+                    **again,
+                    uuid=uuid,
+                    rig_calibration_id=other_id,
+                    source_file="/elsewhere/copy.h5",
+                    source_sha256="f" * 64,
+                    started_at=datetime.now(UTC),
+                )
+            )
     assert count(migrated, Run) == 1
 
 
@@ -212,15 +235,17 @@ def test_span_measurement_track_must_be_its_runs(migrated: Engine, build: Any) -
     assert count(migrated, SpanMeasurement) == 0
 
 
-def test_span_measurement_inserted_by_run_id_gets_the_track(migrated: Engine, build: Any) -> None:
+def test_span_measurement_inserted_by_processing_id_gets_the_run_and_track(
+    migrated: Engine, build: Any
+) -> None:
     with session_scope(migrated) as session:
         run = build.run(session)
-        run_id, track_id = run.id, run.track_id
+        run_id, track_id, processing_id = run.id, run.track_id, run.processing_id
     with session_scope(migrated) as session:
-        span = build.span(None, 3, run_id=run_id)  # only the run's id
+        span = build.span(None, 3, processing_id=processing_id)  # only the processing's id
         session.add(span)
         session.flush()
-        assert span.track_id == track_id
+        assert (span.run_id, span.track_id) == (run_id, track_id)
 
 
 def test_unit_of_work_rolls_back_everything_on_error(migrated: Engine, build: Any) -> None:
@@ -235,7 +260,7 @@ def test_unit_of_work_rolls_back_everything_on_error(migrated: Engine, build: An
     # a failure in the database half-way is the same: the first rows are not kept either
     with pytest.raises(IntegrityError), session_scope(migrated) as session:
         run = build.run(session)
-        session.add_all([build.span(run, 0), build.span(run, 0)])  # same (run, span, wire)
+        session.add_all([build.span(run, 0), build.span(run, 0)])  # same (processing, span, wire)
     assert count(migrated, Run) == 0
     assert count(migrated, SpanMeasurement) == 0
 

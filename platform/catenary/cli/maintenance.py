@@ -58,7 +58,10 @@ def alerts() -> None:
 
 @alerts.command("evaluate")
 @click.option(
-    "--run", "run_reference", metavar="ID", help="The spans one run measured (or 'latest')."
+    "--run",
+    "run_reference",
+    metavar="ID",
+    help="The spans one run measured (its id, UUID or its prefix, or 'latest').",
 )
 @click.option("--all", "everything", is_flag=True, help="Every span of the fleet.")
 @click.option(

@@ -41,7 +41,13 @@ def _list(registry: PluginRegistry) -> None:
 @click.command("report")
 @click.argument("name", required=False)
 @click.argument("runs", nargs=-1, metavar="[RUN]...")
-@click.option("--run", "more_runs", multiple=True, metavar="RUN", help="A run id or 'latest'.")
+@click.option(
+    "--run",
+    "more_runs",
+    multiple=True,
+    metavar="RUN",
+    help="A run id, UUID (or its prefix) or 'latest'.",
+)
 @click.option("--latest", is_flag=True, help="The last processed run (as RUN 'latest').")
 @click.option("--line", metavar="CODE", help="Line code.", callback=identifier_option(CODE_LENGTH))
 @click.option(
@@ -85,7 +91,8 @@ def report(
     output: Path | None,
     list_reporters: bool,
 ) -> None:
-    """Write report NAME to OUTPUT (RUN: a run id or 'latest'; --list: the reporters).
+    """Write report NAME to OUTPUT (RUN: a run id, UUID or its prefix, or 'latest'; --list:
+    the reporters).
 
     \b
     catenary report run RUN -o run.html

@@ -49,7 +49,11 @@ __all__ = ["compare", "export", "process"]
     show_default=True,
     help="Processing method (catenary plugins lists them).",
 )
-@click.option("--replace", is_flag=True, help="Process a run already stored again, replacing it.")
+@click.option(
+    "--replace",
+    is_flag=True,
+    help="Process a run already stored again: a new processing, which becomes the one seen.",
+)
 @database_option
 @click.pass_context
 def process(
@@ -121,7 +125,10 @@ def process(
             ctx.exit(interrupted_exit_code(interruption))
         if interruptions.received is not None and not result.already_stored:
             _interrupted_once_stored(ctx, result.run_id, interruptions.received)
-        stored = f"{run_path} is already stored with this rig calibration as run {result.run_id}"
+        stored = (
+            f"{run_path} is already stored with this rig calibration as run {result.run_id} "
+            f"(UUID {result.run_uuid})"
+        )
         if result.already_stored and not (result.alerts_pending and alerting.policy is not None):
             click.echo(f"{stored}: nothing done (--replace processes it again)")
             return
@@ -139,7 +146,10 @@ def process(
     for text in [*lines, *run_alerts_lines(alerts)]:
         click.echo(printable(text))
     if not result.already_stored:
-        click.echo(f"stored as run {result.run_id}")
+        click.echo(
+            f"stored as run {result.run_id} (UUID {result.run_uuid}), "
+            f"processing {result.processing_uuid}"
+        )
         warning = result.warning(run_path)
         if warning is not None:
             click.echo(printable(warning), err=True)
@@ -182,7 +192,8 @@ def _interrupted_once_stored(
 @database_option
 @click.pass_context
 def export(ctx: click.Context, run_reference: str, what: str, output: Path) -> None:
-    """Export a run's samples or spans (RUN: a run id or 'latest') as CSV or Parquet."""
+    """Export a run's samples or spans as CSV or Parquet (RUN: a run id, UUID or its prefix,
+    or 'latest')."""
     from catenary.measurement.export import export_run
 
     written, run_id = export_run(app_of(ctx).settings, run_reference, what, output)

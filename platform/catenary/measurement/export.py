@@ -33,7 +33,7 @@ def export_run(settings: Settings, reference: str, what: str, output: Path) -> t
         if what == "spans":
             rows = session.scalars(
                 select(SpanMeasurement)
-                .where(SpanMeasurement.run_id == run.id)
+                .where(SpanMeasurement.processing_id == run.processing_id)
                 .order_by(SpanMeasurement.span, SpanMeasurement.wire)
             )
             written = export_table(iter([span_table(rows)]), SPAN_SCHEMA, output)

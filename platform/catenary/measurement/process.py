@@ -52,6 +52,7 @@ groups (``benchmarks/process_memory.py``).
 from __future__ import annotations
 
 import hashlib
+import importlib.metadata
 import math
 import os
 import signal
@@ -93,8 +94,8 @@ from catenary.measurement.spans import SpanAccumulator, SpanLayout, SpanStatisti
 from catenary.measurement.vehicle import load_vehicle_geometry
 from catenary.plugins import BlockProcessor, PluginRegistry, RunChecker
 from catenary.storage.database import open_database, session_scope
-from catenary.storage.models import Run, SpanMeasurement
-from catenary.storage.runs import find_stored_run, store_run
+from catenary.storage.models import Processing, SpanMeasurement
+from catenary.storage.runs import find_stored_run, settings_sha256, store_processing
 from catenary.text import length_problem
 from catenary.wiretype import WireType
 
@@ -105,11 +106,14 @@ __all__ = [
     "StoredThenInterrupted",
     "database_fingerprint",
     "process_run",
+    "processing_settings",
     "remove_abandoned_scratch",
 ]
 
 
 DEFAULT_PROCESSOR = "linescan-stereo"
+PACKAGE_VERSION = importlib.metadata.version("catenary")
+"""The version recorded with each processing (``Processing.package_version``)."""
 BLOCK_SCANS = 1024
 SAMPLES_DIR = "samples"
 LEGACY_SCRATCH_AGE_S = 86400.0
@@ -160,7 +164,9 @@ class ProcessResult:
     alerts are still to be evaluated: ``alerts_pending``)."""
 
     run_id: int
+    run_uuid: str
     already_stored: bool
+    processing_uuid: str = ""
     alerts_pending: bool = False
     replaced: bool = False
     header: RunHeader | None = None
@@ -235,7 +241,7 @@ class ProcessResult:
         if self.sensors:
             lines.append(f"sensors    {self.sensors}")
         if self.replaced:
-            lines.append("replaced   the run's earlier results")
+            lines.append("replaced   the run's earlier results (kept as its earlier processings)")
         return lines
 
 
@@ -392,6 +398,20 @@ def _processor(
             except UserError as exc:
                 raise UserError(f"{request.run_path}: {exc}") from None
     return processor, geometry
+
+
+def processing_settings(
+    request: ProcessRequest, settings: Settings, filter_hz: float
+) -> dict[str, Any]:
+    """What a processing is made with besides the run file, the rig calibration and the
+    package (``Processing.settings``): the processor's options (``[processors.NAME]``), the
+    vehicle sensors' filter and the wire type given for the whole run."""
+    options = settings.sections.get("processors", {}).get(request.processor, {})
+    return {
+        "processor_options": dict(options),
+        "vehicle_filter_hz": filter_hz,
+        "wire_type": request.wire_type,
+    }
 
 
 def _measure(
@@ -613,7 +633,9 @@ def _refers_to(engine: Engine, samples: Path) -> bool:
     """Whether a run of the database has the samples file ``samples`` (relative to the data
     directory)."""
     with session_scope(engine, read_only=True) as session:
-        found = session.scalar(select(Run.id).where(Run.samples_path == str(samples)).limit(1))
+        found = session.scalar(
+            select(Processing.id).where(Processing.samples_key == str(samples)).limit(1)
+        )
         return found is not None
 
 
@@ -661,9 +683,9 @@ class StoredThenInterrupted(KeyboardInterrupt):
 class _StoredMeanwhile(Exception):
     """Another process stored the same run while this one measured it."""
 
-    def __init__(self, run_id: int) -> None:
+    def __init__(self, run_id: int, run_uuid: str) -> None:
         super().__init__(run_id)
-        self.run_id = run_id
+        self.run_id, self.run_uuid = run_id, run_uuid
 
 
 def process_run(
@@ -691,13 +713,15 @@ def _process_open_run(
 ) -> ProcessResult:
     inputs = _check_inputs(request, run_file.header, settings, registry)
     processor, geometry = _processor(request, run_file.header, registry, settings)
+    made_with = processing_settings(request, settings, inputs.vehicle_filter_hz)
     rig_sha256 = hashlib.sha256(inputs.rig_text.encode("utf-8")).hexdigest()
     with open_database(settings, batch=True) as engine:
         with session_scope(engine, read_only=True) as session:
-            stored = find_stored_run(session, inputs.source_sha256, geometry.name, rig_sha256)
+            stored = find_stored_run(session, inputs.source_sha256, rig_sha256)
             if stored is not None and not request.replace:
                 return ProcessResult(
                     run_id=stored.id,
+                    run_uuid=stored.uuid,
                     already_stored=True,
                     alerts_pending=stored.alerts_evaluated_at is None,
                     header=inputs.header,
@@ -718,7 +742,6 @@ def _process_open_run(
         partial = folder / _scratch_name("samples", token)
         final: Path | None = None
         kept: Path | None = None
-        old_samples: str | None = None
         try:
             with SampleWriter(measured, _MEASURED_SCHEMA) as writer:
                 finder, last_position, smoother = _measure(
@@ -751,12 +774,10 @@ def _process_open_run(
                         # holds the write lock, so a concurrent process of the same run waits
                         # for it here and then finds the run stored
                         if replaced is None:
-                            stored = find_stored_run(
-                                session, inputs.source_sha256, geometry.name, rig_sha256
-                            )
+                            stored = find_stored_run(session, inputs.source_sha256, rig_sha256)
                             if stored is not None:
-                                raise _StoredMeanwhile(stored.id)
-                        run, old_samples = store_run(
+                                raise _StoredMeanwhile(stored.id, stored.uuid)
+                        run, processing = store_processing(
                             session,
                             line=inputs.line,
                             track=inputs.track,
@@ -764,19 +785,27 @@ def _process_open_run(
                             geometry=geometry,
                             rig_name=request.rig_path.stem,
                             rig_text=inputs.rig_text,
-                            replacing=replaced,
+                            replacing=replaced is not None,
                             span_rows=span_rows,
-                            values=dict(
+                            run_values=dict(
                                 direction=header.direction,
                                 source_file=str(request.run_path.resolve()),
                                 source_sha256=inputs.source_sha256,
-                                wire_type=request.wire_type,
                                 started_at=_started_at(header),
-                                processed_at=datetime.now(UTC),
                                 scans=header.scans,
-                                length_m=float(abs(ends[1] - ends[0])),
                                 status="complete",
                                 error=None,
+                                alerts_evaluated_at=None,  # new or replaced spans: pending
+                            ),
+                            processing_values=dict(
+                                uuid=str(uuid.uuid4()),
+                                processor=request.processor,
+                                package_version=PACKAGE_VERSION,
+                                settings=made_with,
+                                settings_sha256=settings_sha256(made_with),
+                                processed_at=datetime.now(UTC),
+                                wire_type=request.wire_type,
+                                length_m=float(abs(ends[1] - ends[0])),
                                 chainage_aligned=alignment.aligned,
                                 chainage_offset_m=alignment.offset_m,
                                 encoder_scale=alignment.scale,
@@ -784,7 +813,6 @@ def _process_open_run(
                                 alignment_rms_m=alignment.residual_rms_m
                                 if alignment.aligned
                                 else None,
-                                alerts_evaluated_at=None,  # new or replaced spans: pending
                             ),
                         )
                         # the run's name for the file; the hidden one names this process
@@ -792,29 +820,30 @@ def _process_open_run(
                         # and tidied (remove_abandoned_scratch)
                         final = folder / f"run-{run.id}-{token}.parquet"
                         os.link(partial, final)
-                        run.samples_path = str(final.relative_to(settings.data_dir))
+                        processing.samples_key = str(final.relative_to(settings.data_dir))
                         session.flush()
-                        run_id = run.id
+                        run_id, run_uuid, processing_uuid = run.id, run.uuid, processing.uuid
                     kept, final = final, None  # the stored run's: never removed from here on
             except IntegrityError:
                 # PostgreSQL: a concurrent process stored the same run first; this insert
                 # waited for its commit and then broke a unique key
                 with session_scope(engine, read_only=True) as session:
-                    stored = find_stored_run(
-                        session, inputs.source_sha256, geometry.name, rig_sha256
-                    )
+                    stored = find_stored_run(session, inputs.source_sha256, rig_sha256)
                 if stored is None or replaced is not None:
                     raise
-                raise _StoredMeanwhile(stored.id) from None
+                raise _StoredMeanwhile(stored.id, stored.uuid) from None
             partial.unlink()
-            if old_samples:
-                (settings.data_dir / old_samples).unlink(missing_ok=True)
         except BaseException as exc:
             for path in (measured, partial, final):
                 if path is not None:
                     path.unlink(missing_ok=True)
             if isinstance(exc, _StoredMeanwhile):
-                return ProcessResult(run_id=exc.run_id, already_stored=True, header=inputs.header)
+                return ProcessResult(
+                    run_id=exc.run_id,
+                    run_uuid=exc.run_uuid,
+                    already_stored=True,
+                    header=inputs.header,
+                )
             if isinstance(exc, KeyboardInterrupt) and kept is not None:
                 raise StoredThenInterrupted(run_id, exc) from None
             raise
@@ -822,6 +851,8 @@ def _process_open_run(
     minimum = min(span_rows, key=lambda r: r.min_residual_thickness_mm, default=None)
     return ProcessResult(
         run_id=run_id,
+        run_uuid=run_uuid,
+        processing_uuid=processing_uuid,
         already_stored=False,
         replaced=replaced is not None,
         header=inputs.header,

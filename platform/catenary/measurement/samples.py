@@ -33,6 +33,7 @@ from catenary.errors import FormatError, UserError
 from catenary.measurement.compare import RunProfile
 from catenary.measurement.spreadsheet import for_people
 from catenary.storage.models import Run
+from catenary.storage.runs import latest_processing
 
 __all__ = [
     "ADDED_COLUMNS",
@@ -261,11 +262,12 @@ def export_schema(path: Path, columns: tuple[str, ...] = EXPORT_COLUMNS) -> pa.S
 
 
 def samples_file(settings: Settings, run: Run) -> Path:
-    """The run's samples Parquet file (``Run.samples_path``, relative to the data directory
-    unless absolute)."""
-    if not run.samples_path:
+    """The samples Parquet file of the run's latest processing (``Processing.samples_key``,
+    relative to the data directory unless absolute)."""
+    key = latest_processing(run).samples_key
+    if not key:
         raise UserError(f"run {run.id} has no samples file")
-    path = Path(run.samples_path)
+    path = Path(key)
     return path if path.is_absolute() else settings.data_dir / path
 
 

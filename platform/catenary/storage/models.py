@@ -18,11 +18,13 @@ Conventions:
 
 from __future__ import annotations
 
+import uuid
 from datetime import UTC, datetime
 from typing import Any, ClassVar
 
 from sqlalchemy import (
     JSON,
+    BigInteger,
     CheckConstraint,
     DateTime,
     Dialect,
@@ -68,6 +70,9 @@ ALERT_KINDS = ("threshold", "forecast")
 NOTIFICATION_STATUSES = ("pending", "sent", "failed")
 
 SHA256_LENGTH = 64
+UUID_LENGTH = 36
+RUN_NAMESPACE = uuid.UUID("5a8e3b0c-6f1d-4c2a-9e47-c4a7e2b1d0f3")
+"""The namespace of the runs' name-based UUIDs (``run_uuid``): never change it."""
 
 
 def one_of(column: str, values: tuple[str, ...]) -> str:
@@ -218,17 +223,19 @@ class RigCalibration(Base):
 
 
 class Run(Base):
-    """One inspection run processed from one recorded run file with one rig calibration.
+    """One inspection run: one recorded run file measured with one rig calibration.
 
-    The same file processed with the same calibration is stored once
-    (unique ``source_sha256``, ``rig_calibration_id``). ``samples_path`` is the Parquet file of
-    the full-resolution wear samples (the ``samples`` export columns), relative to the data
-    directory unless absolute.
+    A run's identity is its content, the same on every machine: the run file's SHA-256
+    (``source_sha256``) and the rig calibration's content SHA-256 (``rig_sha256``), unique
+    together; ``uuid`` is derived from them (``run_uuid``), so a run processed on two vehicles,
+    or pushed twice, is one run. What it measured belongs to its processings; ``processing_id``
+    is its latest, the only one alerts, forecasts, reports and exports see
+    (``span_measurements``).
     """
 
     __tablename__ = "runs"
     __table_args__ = (
-        UniqueConstraint("source_sha256", "rig_calibration_id"),
+        UniqueConstraint("source_sha256", "rig_sha256"),
         # the target of span_measurements' (run_id, track_id) foreign key
         UniqueConstraint("id", "track_id"),
         Index(None, "line_id", "track_id", "started_at"),
@@ -239,6 +246,7 @@ class Run(Base):
     )
 
     id: Mapped[int] = mapped_column(primary_key=True)
+    uuid: Mapped[str] = mapped_column(String(UUID_LENGTH), unique=True)
     line_id: Mapped[int] = mapped_column(ForeignKey("lines.id", ondelete="RESTRICT"))
     track_id: Mapped[int | None] = mapped_column(ForeignKey("tracks.id", ondelete="RESTRICT"))
     direction: Mapped[str] = mapped_column(String(16))
@@ -248,15 +256,77 @@ class Run(Base):
     )
     source_file: Mapped[str] = mapped_column(String(PATH_LENGTH))
     source_sha256: Mapped[str] = mapped_column(String(SHA256_LENGTH))
+    rig_sha256: Mapped[str] = mapped_column(String(SHA256_LENGTH))
+    started_at: Mapped[datetime]
+    scans: Mapped[int] = mapped_column(Integer, default=0)
+    status: Mapped[str] = mapped_column(String(16), default="processing")
+    error: Mapped[str | None] = mapped_column(Text)
+    # the latest processing (None only while the first is being stored)
+    processing_id: Mapped[int | None] = mapped_column(
+        ForeignKey("processings.id", ondelete="SET NULL", use_alter=True)
+    )
+    # when the run's track was last evaluated for alerts with this run's latest processing in
+    # it; None: pending (runs stored before this column count as pending)
+    alerts_evaluated_at: Mapped[datetime | None] = mapped_column(index=True)
+
+    line: Mapped[Line] = relationship()
+    track: Mapped[Track | None] = relationship()
+    vehicle: Mapped[Vehicle] = relationship()
+    rig_calibration: Mapped[RigCalibration] = relationship()
+    processing: Mapped[Processing | None] = relationship(
+        foreign_keys=[processing_id], post_update=True
+    )
+    processings: Mapped[list[Processing]] = relationship(
+        back_populates="run",
+        foreign_keys="Processing.run_id",
+        cascade="all, delete-orphan",
+        passive_deletes=True,
+        order_by="Processing.processed_at",
+    )
+    span_measurements: Mapped[list[SpanMeasurement]] = relationship(
+        primaryjoin="and_(Run.processing_id == foreign(SpanMeasurement.processing_id), "
+        "Run.id == SpanMeasurement.run_id)",
+        viewonly=True,
+        order_by="(SpanMeasurement.span, SpanMeasurement.wire)",
+    )
+
+
+def run_uuid(source_sha256: str, rig_sha256: str) -> str:
+    """The UUID of the run of this run file content with this rig calibration content: the
+    same on every machine (a name-based UUID, version 5)."""
+    return str(uuid.uuid5(RUN_NAMESPACE, f"{source_sha256}:{rig_sha256}"))
+
+
+class Processing(Base):
+    """One processing of a run: a processor of a package version with settings (``settings``,
+    hashed in ``settings_sha256``) and the run's rig calibration, what it found (the chainage
+    alignment, the length) and what it stored: span measurements and the samples file in the
+    store (``samples_key``, a portable key; its size and SHA-256 checked when it moves).
+
+    ``uuid`` is random: a run processed again is a new processing, wherever that happens.
+    Processings that migrated from before they were recorded have ``settings`` None.
+    """
+
+    __tablename__ = "processings"
+    __table_args__ = (
+        Index(None, "run_id", "processed_at"),
+        CheckConstraint("samples_size_bytes >= 0", name="samples_size_not_negative"),
+    )
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    uuid: Mapped[str] = mapped_column(String(UUID_LENGTH), unique=True)
+    run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"))
+    processor: Mapped[str] = mapped_column(String(NAME_LENGTH))
+    package_version: Mapped[str] = mapped_column(String(CODE_LENGTH))
+    settings_sha256: Mapped[str] = mapped_column(String(SHA256_LENGTH))
+    settings: Mapped[dict[str, Any] | None]
+    rig_calibration_id: Mapped[int] = mapped_column(
+        ForeignKey("rig_calibrations.id", ondelete="RESTRICT")
+    )
+    processed_at: Mapped[datetime]
     # the wire type given for the whole run; None when it comes from the mast register per span
     wire_type: Mapped[str | None] = mapped_column(String(CODE_LENGTH))
-    started_at: Mapped[datetime]
-    processed_at: Mapped[datetime | None]
-    scans: Mapped[int] = mapped_column(Integer, default=0)
     length_m: Mapped[float] = mapped_column(Float, default=0.0)
-    status: Mapped[str] = mapped_column(String(16), default="processing")
-    samples_path: Mapped[str | None] = mapped_column(String(PATH_LENGTH))
-    error: Mapped[str | None] = mapped_column(Text)
     # how chainage was found: chainage = offset + sign * scale * encoder position; aligned to
     # the register's masts through ``alignment_matched`` registration points (False: start +
     # position); None for runs stored before these columns
@@ -265,18 +335,14 @@ class Run(Base):
     encoder_scale: Mapped[float | None] = mapped_column(Float)
     alignment_matched: Mapped[int | None] = mapped_column(Integer)
     alignment_rms_m: Mapped[float | None] = mapped_column(Float)
-    # when the run's track was last evaluated for alerts with this run in it; None: pending
-    # (runs stored before this column count as pending)
-    alerts_evaluated_at: Mapped[datetime | None] = mapped_column(index=True)
+    samples_key: Mapped[str | None] = mapped_column(String(PATH_LENGTH))
+    samples_size_bytes: Mapped[int | None] = mapped_column(BigInteger)
+    samples_sha256: Mapped[str | None] = mapped_column(String(SHA256_LENGTH))
 
-    line: Mapped[Line] = relationship()
-    track: Mapped[Track | None] = relationship()
-    vehicle: Mapped[Vehicle] = relationship()
+    run: Mapped[Run] = relationship(back_populates="processings", foreign_keys=[run_id])
     rig_calibration: Mapped[RigCalibration] = relationship()
     span_measurements: Mapped[list[SpanMeasurement]] = relationship(
-        back_populates="run",
-        primaryjoin="Run.id == SpanMeasurement.run_id",
-        foreign_keys="SpanMeasurement.run_id",
+        back_populates="processing",
         cascade="all, delete-orphan",
         passive_deletes=True,
         order_by="(SpanMeasurement.span, SpanMeasurement.wire)",
@@ -284,7 +350,8 @@ class Run(Base):
 
 
 class SpanMeasurement(Base):
-    """One span and contact wire of one run: the ``spans`` export row (FORMATS.md).
+    """One span and contact wire of one processing of a run: the ``spans`` export row
+    (FORMATS.md).
 
     ``track_id`` is the run's track, kept here so that measurements are found by track and
     chainage across runs; a foreign key on ``(run_id, track_id)`` keeps it equal to the run's.
@@ -293,8 +360,9 @@ class SpanMeasurement(Base):
 
     __tablename__ = "span_measurements"
     __table_args__ = (
-        # its index, led by run_id, also serves look-ups by run
-        UniqueConstraint("run_id", "span", "wire"),
+        # its index, led by processing_id, also serves look-ups by processing
+        UniqueConstraint("processing_id", "span", "wire"),
+        Index(None, "run_id"),
         ForeignKeyConstraint(
             ["run_id", "track_id"],
             ["runs.id", "runs.track_id"],
@@ -309,6 +377,7 @@ class SpanMeasurement(Base):
 
     id: Mapped[int] = mapped_column(primary_key=True)
     run_id: Mapped[int] = mapped_column(ForeignKey("runs.id", ondelete="CASCADE"))
+    processing_id: Mapped[int] = mapped_column(ForeignKey("processings.id", ondelete="CASCADE"))
     track_id: Mapped[int | None] = mapped_column(Integer)
     span: Mapped[int] = mapped_column(Integer)
     # mast codes; None when the span was found without a mast register
@@ -327,22 +396,33 @@ class SpanMeasurement(Base):
     stagger_max_mm: Mapped[float] = mapped_column(Float)
     samples: Mapped[int] = mapped_column(Integer)
 
-    run: Mapped[Run] = relationship(
-        back_populates="span_measurements",
-        primaryjoin="Run.id == SpanMeasurement.run_id",
-        foreign_keys=[run_id],
-    )
+    run: Mapped[Run] = relationship(foreign_keys=[run_id])
+    processing: Mapped[Processing] = relationship(back_populates="span_measurements")
 
 
 @event.listens_for(SpanMeasurement, "before_insert")
-def _track_of_run(mapper: Mapper[Any], connection: Connection, target: SpanMeasurement) -> None:
-    """Copy the run's track onto a new span measurement that does not give one."""
+def _run_of_processing(
+    mapper: Mapper[Any], connection: Connection, target: SpanMeasurement
+) -> None:
+    """Copy the processing's run, and the run's track, onto a new span measurement that does
+    not give them."""
+    state = inspect(target).dict  # loaded or assigned, never lazy-loaded in a flush
+    processing = state.get("processing")
+    if target.run_id is None:
+        if isinstance(processing, Processing):
+            target.run_id = processing.run_id
+        else:
+            target.run_id = connection.scalar(
+                select(Processing.run_id).where(Processing.id == target.processing_id)
+            )
     if target.track_id is not None:
         return
-    run = inspect(target).dict.get("run")  # loaded or assigned, never lazy-loaded in a flush
-    if isinstance(run, Run):
+    run = state.get("run")
+    if not isinstance(run, Run) and isinstance(processing, Processing):
+        run = inspect(processing).dict.get("run")
+    if isinstance(run, Run) and run.id == target.run_id:
         target.track_id = run.track_id
-    elif target.run_id is not None:
+    else:
         target.track_id = connection.scalar(select(Run.track_id).where(Run.id == target.run_id))
 
 

@@ -1,26 +1,38 @@
-"""Runs in the database: the register's lines, tracks and masts, storing, finding and replacing
-runs."""
+"""Runs in the database: the register's lines, tracks and masts, storing runs and their
+processings, finding runs."""
 
 from __future__ import annotations
 
+import hashlib
+import json
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from sqlalchemy import delete, select
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from catenary.domain import TrackRegister, VehicleGeometry
 from catenary.errors import UserError
 from catenary.storage.inserts import get_or_add, insert_new
-from catenary.storage.models import Line, Mast, RigCalibration, Run, SpanMeasurement, Track
+from catenary.storage.models import (
+    Line,
+    Mast,
+    Processing,
+    Run,
+    SpanMeasurement,
+    Track,
+    run_uuid,
+)
 from catenary.storage.rigs import register_rig_calibration
 
 __all__ = [
     "find_run",
     "find_stored_run",
+    "latest_processing",
     "pending_runs",
     "register_track",
-    "store_run",
+    "settings_sha256",
+    "store_processing",
     "track_masts",
 ]
 
@@ -82,7 +94,7 @@ def track_masts(session: Session, track: Track, register: TrackRegister) -> int:
     return changed
 
 
-def store_run(
+def store_processing(
     session: Session,
     *,
     line: str,
@@ -91,67 +103,112 @@ def store_run(
     geometry: VehicleGeometry,
     rig_name: str,
     rig_text: str,
-    replacing: int | None,
-    values: Mapping[str, Any],
+    replacing: bool,
+    run_values: Mapping[str, Any],
+    processing_values: Mapping[str, Any],
     span_rows: Sequence[SpanMeasurement],
-) -> tuple[Run, str | None]:
-    """Store a processed run in the caller's transaction.
+) -> tuple[Run, Processing]:
+    """Store a processing of a run in the caller's transaction.
 
     Adds what is new of its line, track and masts (``register``), its vehicle and rig
-    calibration (versioned by content), and the run with ``values`` (``Run`` columns) and its
-    span measurements. A run processed again (``replacing``: its id) keeps its id and loses its
-    earlier span measurements. Returns the run, flushed (it has its id), and the samples key it
-    had before (None: none).
+    calibration (versioned by content) and the run (``run_values``: ``Run`` columns), or,
+    ``replacing``, updates the run stored (its identity: ``source_sha256`` and the
+    calibration's content); then the processing (``processing_values``: ``Processing`` columns) with its span
+    measurements, which becomes the run's latest: its earlier processings stay, unseen by
+    alerts, reports and exports. Returns both, flushed (they have their ids).
+
+    A new run is inserted without looking for it: if another transaction stored it
+    meanwhile, the insert breaks the identity's unique key (``IntegrityError``).
     """
     line_row, track_row = register_track(session, line, track)
     if register is not None:
         track_masts(session, track_row, register)
     calibration = register_rig_calibration(session, geometry, rig_name, rig_text)
-    run = None if replacing is None else session.get(Run, replacing)
-    old_samples = None
+    run = (
+        find_stored_run(session, run_values["source_sha256"], calibration.sha256)
+        if replacing
+        else None
+    )
+    if replacing and run is None:
+        raise UserError("the run to process again is no longer stored: process it anew")
     if run is None:
-        run = Run()
-    else:
-        old_samples = run.samples_path
-        session.execute(delete(SpanMeasurement).where(SpanMeasurement.run_id == run.id))
-        session.expire(run, ["span_measurements"])
-    for name, value in values.items():
+        run = Run(
+            uuid=run_uuid(run_values["source_sha256"], calibration.sha256),
+            rig_sha256=calibration.sha256,
+            line=line_row,
+            track=track_row,
+            vehicle=calibration.vehicle,
+            rig_calibration=calibration,
+        )
+        session.add(run)
+    for name, value in run_values.items():
         setattr(run, name, value)
-    run.line, run.track = line_row, track_row
-    run.vehicle, run.rig_calibration = calibration.vehicle, calibration
-    run.span_measurements = list(span_rows)
-    session.add(run)
+    processing = Processing(run=run, rig_calibration=calibration, **processing_values)
+    processing.span_measurements = list(span_rows)
+    session.add(processing)
     session.flush()
-    return run, old_samples
+    run.processing = processing
+    session.flush()
+    session.expire(run, ["span_measurements"])
+    return run, processing
 
 
-def find_stored_run(
-    session: Session, source_sha256: str, vehicle: str, rig_sha256: str
-) -> Run | None:
-    """The run already stored from this file content with this rig calibration content."""
+def latest_processing(run: Run) -> Processing:
+    """The run's latest processing (every stored run has one)."""
+    if run.processing is None:
+        raise UserError(f"run {run.id} has no processing: process its run file again")
+    return run.processing
+
+
+def find_stored_run(session: Session, source_sha256: str, rig_sha256: str) -> Run | None:
+    """The run of this file content measured with this rig calibration content, if stored."""
     return session.scalars(
-        select(Run)
-        .join(RigCalibration, Run.rig_calibration_id == RigCalibration.id)
-        .where(Run.source_sha256 == source_sha256, RigCalibration.sha256 == rig_sha256)
-        .where(RigCalibration.vehicle.has(name=vehicle))
-    ).first()
+        select(Run).where(Run.source_sha256 == source_sha256, Run.rig_sha256 == rig_sha256)
+    ).one_or_none()
+
+
+def settings_sha256(settings: Mapping[str, Any] | None) -> str:
+    """SHA-256 of a processing's settings as canonical JSON (keys sorted, no spaces)."""
+    text = json.dumps(settings, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+UUID_PREFIX_MIN = 4
+"""The shortest prefix of a run's UUID that ``find_run`` looks up."""
 
 
 def find_run(session: Session, reference: str) -> Run:
-    """The run with id ``reference``, or the last processed with ``latest``."""
+    """The run that ``reference`` names: its id (a number), its UUID or a prefix of it that
+    only it has (``UUID_PREFIX_MIN`` characters at least), or ``latest`` (the run processed
+    last)."""
     if reference == "latest":
-        run = session.scalars(select(Run).order_by(Run.id.desc()).limit(1)).first()
+        run = session.scalars(
+            select(Run)
+            .join(Processing, Processing.id == Run.processing_id)
+            .order_by(Processing.processed_at.desc(), Run.id.desc())
+            .limit(1)
+        ).first()
         if run is None:
             raise UserError("no run in the database yet: catenary process RUN.h5 stores one")
         return run
-    try:
-        number = int(reference)
-    except ValueError:
-        raise UserError(f"run {reference!r}: give a run id (a number) or 'latest'") from None
-    run = session.get(Run, number)
-    if run is None:
-        raise UserError(f"no run {number} in the database")
-    return run
+    if reference.isdigit():
+        run = session.get(Run, int(reference))
+        if run is not None:
+            return run
+    prefix = reference.lower()
+    if len(prefix) < UUID_PREFIX_MIN or prefix.strip("0123456789abcdef-"):
+        if reference.isdigit():
+            raise UserError(f"no run {reference} in the database")
+        raise UserError(
+            f"run {reference!r}: give a run id (a number), its UUID (or the first "
+            f"{UUID_PREFIX_MIN} characters or more of it) or 'latest'"
+        )
+    found = list(session.scalars(select(Run).where(Run.uuid.startswith(prefix)).limit(2)))
+    if not found:
+        raise UserError(f"no run {reference} in the database")
+    if len(found) > 1:
+        raise UserError(f"run {reference!r}: several runs' UUIDs begin so: give more of it")
+    return found[0]
 
 
 def pending_runs(session: Session, *, line: str | None = None) -> list[int]:

@@ -169,7 +169,7 @@ class TrackData:
             )
             # through the track's runs: each run's rows lie together, read in their order
             .select_from(Run)
-            .join(sm, sm.run_id == Run.id)
+            .join(sm, and_(sm.run_id == Run.id, sm.processing_id == Run.processing_id))
             .where(Run.track_id == self.track_id, Run.status == "complete")
         )
         if not self.hashed:
