@@ -37,7 +37,8 @@ SAMPLES_PREFIX = "samples"
 CHUNK_BYTES = 8 * 1024 * 1024
 #: S3: how long connecting may take, in seconds (a refused connection fails at once).
 CONNECT_TIMEOUT_S = 3.0
-#: S3: how long a request may wait for the server's bytes, in seconds.
+#: S3: how long a request may wait for the server's bytes, in seconds (the AWS SDK applies it
+#: on Windows and macOS only; the store's own DeleteObject request everywhere).
 REQUEST_TIMEOUT_S = 60.0
 #: S3: attempts of a request before its error is reported (the first included).
 MAX_ATTEMPTS = 3
