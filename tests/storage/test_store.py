@@ -32,6 +32,7 @@ from catenary.storage.store import (
     open_store,
     samples_key,
 )
+
 from ..conftest import S3Server
 
 LINE, TRACK = "L/1=a b", "ü 2"
@@ -183,6 +184,22 @@ def test_put_verify_open_exists_delete_keys(store: Store, tmp_path: Path) -> Non
         store.size(key)
 
 
+def test_delete_keeps_neighbours_and_emptied_folders_reusable(store: Store, tmp_path: Path) -> None:
+    """Deleting leaves the folder's other objects listed and readable, and an emptied folder
+    takes new objects (pyarrow's folder markers would break both on rclone serve s3)."""
+    source = make_file(tmp_path / "a.bin", b"abc")
+    first, second = samples_key(LINE, TRACK, "run-1"), samples_key(LINE, TRACK, "run-2")
+    store.put_file(source, first)
+    kept = store.put_file(source, second)
+    store.delete(first)
+    assert store.keys() == [second]
+    assert store.verify(second, kept.size_bytes, kept.sha256)
+    store.delete(second)
+    assert store.keys() == []
+    store.put_file(source, first)
+    assert store.keys() == [first]
+
+
 def test_large_upload_round_trips(store: Store, tmp_path: Path) -> None:
     """40 MB: several parts of a multipart upload on S3."""
     source = tmp_path / "large.bin"
@@ -320,7 +337,7 @@ def test_unreachable_endpoint_is_one_line_within_seconds(tmp_path: Path) -> None
 def test_refused_keys_are_one_line(s3_server: S3Server, tmp_path: Path) -> None:
     s3_server.start()
     settings = load_settings(config_path=s3_config(tmp_path, s3_server.endpoint))
-    with pytest.raises(StoreError, match="cannot reach the store: .*ACCESS_DENIED") as raised:
+    with pytest.raises(StoreError, match=r"cannot reach the store: .*ACCESS_DENIED") as raised:
         open_store(settings, environ={"AK_VAR": "catenary-test-access", "SK_VAR": "wrong-secret"})
     assert "wrong-secret" not in str(raised.value)
 
