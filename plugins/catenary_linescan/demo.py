@@ -99,7 +99,7 @@ def run_demo(context: CommandContext, out: Path, length_m: float, seed: int) -> 
     click.echo(f"captures          {captures}")
     click.echo(f"rig calibration   {rig_path}")
     click.echo(f"database          {mask_url(settings.database_url)} (run {result.run_id})")
-    click.echo(f"samples           {result.samples_path}")
+    click.echo(f"samples           {result.samples_where}")
     click.echo(f"report            {report} (the run report: open it in a browser)")
     click.echo(f"spans             {spans} (one row per span and wire)")
     raised = len(alerts.new) if alerts else 0

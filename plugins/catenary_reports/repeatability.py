@@ -24,6 +24,7 @@ from catenary.plugins import ReportRequest
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Run
 from catenary.storage.runs import find_run, latest_processing
+from catenary.storage.store import open_store
 from catenary_reports import html
 from catenary_reports.plots import (
     PLOT_COLUMNS,
@@ -155,7 +156,8 @@ def write(raw: ReportRequest, output: Path) -> Path:
         a, b = (find_run(session, reference) for reference in request.runs)
         if a.track_id != b.track_id:
             raise UserError(f"runs {a.id} and {b.id} are on different tracks")
-        profiles = run_profile(settings, a), run_profile(settings, b)
+        store = open_store(settings)
+        profiles = run_profile(store, a), run_profile(store, b)
         facts = list(zip(_run_facts(a), _run_facts(b), strict=True))
         boundaries: dict[float, str | None] = {}
         for s in a.span_measurements:

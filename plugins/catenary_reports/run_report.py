@@ -28,9 +28,10 @@ import pyarrow as pa
 from catenary.limits import LEVELS, LimitPolicy, Threshold, thresholds
 from catenary.measurement.samples import (
     TRUST_COLUMNS,
+    StoredSamples,
     export_table,
     read_sample_batches,
-    samples_file,
+    run_samples,
     trusted,
 )
 from catenary.measurement.spans import SPAN_COLUMNS, SPAN_SCHEMA
@@ -38,6 +39,7 @@ from catenary.plugins import PluginRegistry, ReportRequest
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Run, SpanMeasurement
 from catenary.storage.runs import find_run, latest_processing
+from catenary.storage.store import open_store
 from catenary_reports import html
 from catenary_reports.html import Cell, number
 from catenary_reports.plots import (
@@ -183,7 +185,7 @@ class _Extent:
     surely the contact wire), how many there are, how many rows the file holds, and how many
     of them have a vehicle sensor fault and how many are ``selection_uncertain``."""
 
-    path: Path
+    path: StoredSamples
     low_m: float
     high_m: float
     samples: int
@@ -192,7 +194,7 @@ class _Extent:
     uncertain: int
 
 
-def _extent(path: Path) -> _Extent:
+def _extent(path: StoredSamples) -> _Extent:
     low, high, usable, rows, faulty, uncertain = math.inf, -math.inf, 0, 0, 0, 0
     for batch in read_sample_batches(path, ["chainage_m", *TRUST_COLUMNS]):
         c = batch["chainage_m"][trusted(batch)]
@@ -453,7 +455,7 @@ def write(raw: ReportRequest, output: Path) -> Path:
         if suffix != ".html":
             export_table(iter([_table(spans, limits)]), _TABLE_SCHEMA, output)
             return output
-        extent = _extent(samples_file(settings, run))
+        extent = _extent(run_samples(open_store(settings), run))
         facts = _facts(run, spans, extent)
         title = f"Run {run.id}: line {run.line.code}, track {run.track.code if run.track else '-'}"
         subtitle = (

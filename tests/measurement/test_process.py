@@ -18,6 +18,7 @@ import socket
 import subprocess
 import sys
 import time
+import uuid
 import warnings
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +34,7 @@ from sqlalchemy import Engine, create_engine, event, func, select
 from sqlalchemy.orm import Session
 
 from catenary.cli import cli
+from catenary.config import Settings
 from catenary.domain import WireObservations
 from catenary.measurement.process import (
     LEGACY_SCRATCH_AGE_S,
@@ -47,6 +49,7 @@ from catenary.plugins import PluginRegistry, Processor, hookimpl
 from catenary.storage import migrate
 from catenary.storage.database import make_engine, session_scope
 from catenary.storage.models import Mast, Run, SpanMeasurement, run_uuid
+from catenary.storage.store import open_store, samples_key
 from catenary_linescan.simulator import DEMO_RIG_PATH, load_rig, record_run
 from catenary_linescan.simulator.captures import write_captures
 
@@ -266,7 +269,7 @@ def test_processing_twice_says_so_and_replace_replaces(
     assert again.exit_code == 0, again.output
     assert "already stored" in again.output and "run 1" in again.output
     assert stored(database) == first
-    (old_file,) = (isolated_environment / "samples").iterdir()
+    (old_file,) = (isolated_environment / "samples").rglob("*.parquet")
     replaced = process(simulated, database, "--replace")
     assert replaced.exit_code == 0, replaced.output
     assert replaced.output.strip().splitlines()[-1].startswith("stored as run 1 ")  # the same
@@ -279,10 +282,10 @@ def test_processing_twice_says_so_and_replace_replaces(
         assert len(run.span_measurements) == first[1]
         assert {s.processing_id for s in run.span_measurements} == {latest.id}
         assert len(first_processing.span_measurements) == first[1]
-        assert first_processing.samples_key == f"samples/{old_file.name}"
+        assert first_processing.samples_key == str(old_file.relative_to(isolated_environment))
         new_key = latest.samples_key
     assert stored(database) == (1, 2 * first[1])
-    files = sorted((isolated_environment / "samples").iterdir())
+    files = sorted((isolated_environment / "samples").rglob("*.parquet"))
     assert old_file in files and len(files) == 2
     assert new_key is not None and (isolated_environment / new_key).is_file()
 
@@ -502,38 +505,55 @@ def test_scratch_files_of_dead_processes_are_removed_and_live_ones_kept(tmp_path
     old = time.time() - LEGACY_SCRATCH_AGE_S - 10.0
     os.utime(files["legacy old"], (old, old))
     removed = remove_abandoned_scratch(tmp_path)
-    assert sorted(removed) == sorted([files["dead"], files["dead samples"], files["legacy old"]])
+    expected = [files["dead"], files["dead samples"], files["legacy old"]]
+    assert sorted(removed) == sorted(map(str, expected))
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
         files[k].name for k in ("live", "other host", "legacy new", "a run's")
     )
 
 
-def test_a_process_killed_while_it_stored_leaves_a_pair_the_next_one_resolves(
+def test_a_process_killed_while_it_stored_leaves_an_object_the_next_one_resolves(
     engine: Engine, build: Any, tmp_path: Path
 ) -> None:
-    """Killed between naming its samples file for the run and removing its own name: the run's
-    file is kept if the run was committed, removed if not; another database's pair is left."""
-    folder = tmp_path / "data" / "samples"
+    """Killed after it put its samples file in the store, before or after the commit: the
+    object is kept if its processing was committed, removed if not; another database's is
+    left for that database's next process."""
+    data = tmp_path / "data"
+    folder = data / "samples"
     folder.mkdir(parents=True)
+    store = open_store(Settings(database_url="sqlite://", data_dir=data))
     host = socket.gethostname()
     gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
                           capture_output=True, text=True, check=True)  # fmt: skip
     ours = database_fingerprint(engine)
     theirs = "ffffffff" if ours != "ffffffff" else "00000000"
-    pairs = {}
-    for name, token in (("committed", "a" * 12 + ours), ("not committed", "b" * 12 + ours),
-                        ("another database's", "c" * 12 + theirs)):  # fmt: skip
-        placed = folder / f"run-1-{token}.parquet"
-        placed.write_bytes(b"PAR1")
-        hidden = folder / f".samples-{host}-{int(gone.stdout)}-{token}.parquet"
-        os.link(placed, hidden)
-        pairs[name] = (placed, hidden)
+    source = tmp_path / "samples.parquet"
+    source.write_bytes(b"PAR1")
+    placed = {}
+    for name, made, fingerprint in (("committed", "a", ours), ("not committed", "b", ours),
+                                    ("another database's", "c", theirs)):  # fmt: skip
+        processing = uuid.UUID(made * 32)
+        key = samples_key("L/1", "1", "run", str(processing))
+        store.put_file(source, key)
+        hidden = (
+            folder / f".samples-{host}-{int(gone.stdout)}-{processing.hex}{fingerprint}.parquet"
+        )
+        hidden.write_bytes(b"PAR1")
+        placed[name] = (key, hidden)
     with session_scope(engine) as session:
-        build.run(session, samples_key=f"samples/{pairs['committed'][0].name}")
-    assert remove_abandoned_scratch(folder) == []  # without the database: nothing to tell
-    removed = remove_abandoned_scratch(folder, engine=engine)
-    assert sorted(removed) == sorted([pairs["committed"][1], *pairs["not committed"]])
-    assert sorted(folder.iterdir()) == sorted([pairs["committed"][0], *pairs["another database's"]])
+        run = build.run(session, samples_key=placed["committed"][0])
+        assert run.processing is not None
+        run.processing.uuid = str(uuid.UUID("a" * 32))
+    # without the database and the store: nothing to tell
+    assert remove_abandoned_scratch(folder, engine=engine) == []
+    removed = remove_abandoned_scratch(folder, engine=engine, store=store)
+    assert sorted(removed) == sorted(
+        [str(placed["committed"][1]), *map(str, placed["not committed"])]
+    )
+    assert store.keys("samples") == sorted(
+        [placed["committed"][0], placed["another database's"][0]]
+    )
+    assert [p.name for p in folder.glob(".*")] == [placed["another database's"][1].name]
 
 
 @pytest.mark.slow
@@ -676,7 +696,9 @@ def test_ctrl_c_as_the_run_commits_keeps_its_samples_file_and_says_it_is_stored(
     )
     assert key is not None
     assert (isolated_environment / key).is_file()
-    assert [p.name for p in (isolated_environment / "samples").iterdir()] == [Path(key).name]
+    assert [p.name for p in (isolated_environment / "samples").rglob("*") if p.is_file()] == [
+        Path(key).name
+    ]
 
 
 # -- runs that do not fit the rig, regions of interest, the recording state -----------------

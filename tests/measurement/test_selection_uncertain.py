@@ -21,9 +21,10 @@ from sqlalchemy import Engine, select
 
 from catenary.cli import cli
 from catenary.config import load_settings
-from catenary.measurement.samples import read_sample_batches, samples_file, trusted
+from catenary.measurement.samples import read_sample_batches, run_samples, trusted
 from catenary.storage.database import session_scope
 from catenary.storage.models import Run, SpanMeasurement
+from catenary.storage.store import open_store
 from catenary_linescan.processor.tracking import TrackedPoints, WireTracker
 
 from ..conftest import SmallRun
@@ -71,7 +72,7 @@ def test_uncertain_rows_are_stored_flagged_and_left_out_of_spans_and_alerts(
     with session_scope(engine, read_only=True) as session:
         run = session.scalars(select(Run)).one()
         spans = session.scalars(select(SpanMeasurement)).all()
-        path = samples_file(load_settings(database_url=database_url), run)
+        path = run_samples(open_store(load_settings(database_url=database_url)), run)
         run_id = run.id
     parts = list(read_sample_batches(path))
     s = {c: np.concatenate([p[c] for p in parts]) for c in parts[0]}

@@ -16,13 +16,13 @@ from typing import Any
 
 import pytest
 from click.testing import CliRunner, Result
-from sqlalchemy import create_engine, insert, select
+from sqlalchemy import create_engine, insert, select, update
 from sqlalchemy.orm import Session
 
 from catenary.cli import cli
 from catenary.storage import migrate
 from catenary.storage.database import make_engine
-from catenary.storage.models import Base, MaintenanceAction, SpanMeasurement
+from catenary.storage.models import Base, MaintenanceAction, Run, SpanMeasurement
 from catenary_linescan.simulator import DEMO_RIG_PATH, load_rig, record_run
 from catenary_linescan.simulator.captures import write_captures
 
@@ -107,10 +107,15 @@ def database(stored: Stored, database_url: str, monkeypatch: pytest.MonkeyPatch)
     migrate.upgrade(engine)
     source = create_engine(stored.url)
     with source.connect() as rows, engine.begin() as target:
+        latest = {}  # runs refer to their processings, which refer to them: set last
         for table in Base.metadata.sorted_tables:
             found = [dict(row) for row in rows.execute(select(table)).mappings()]
+            if table.name == "runs":
+                latest = {row["id"]: row.pop("processing_id") for row in found}
             if found:
                 target.execute(insert(table), found)
+        for run_id, processing_id in latest.items():
+            target.execute(update(Run).where(Run.id == run_id).values(processing_id=processing_id))
     source.dispose()
     engine.dispose()
     monkeypatch.setenv("CATENARY_DATA_DIR", str(stored.data_dir))

@@ -9,8 +9,9 @@ from sqlalchemy import create_engine, select
 from sqlalchemy.orm import Session
 
 from catenary.config import load_settings
-from catenary.measurement.samples import samples_file
+from catenary.measurement.samples import run_samples
 from catenary.storage.models import Run
+from catenary.storage.store import open_store
 from catenary_reports.plots import PLOT_COLUMNS, EnvelopeGrid, envelope, envelope_path
 from catenary_reports.run_report import PANELS, _extent, _grid
 
@@ -60,10 +61,10 @@ def test_batches_and_wires_gather_as_one_array_would() -> None:
 def test_the_run_reports_envelopes_hold_each_wires_minimum_and_maximum(database: str) -> None:
     with Session(create_engine(database)) as session:
         run = session.scalars(select(Run).where(Run.id == 1)).one()
-        samples = samples_file(load_settings(), run)
+        samples = run_samples(open_store(load_settings()), run)
     grid, figures = _grid(_extent(samples), 100.0)
     assert figures == 3 and grid.bins == 3 * PLOT_COLUMNS
-    table = pq.read_table(samples)
+    table = pq.read_table(samples.store.open_input(samples.key))
     columns = {name: table.column(name).to_numpy() for name in table.column_names}
     good = ~columns["vehicle_fault"]
     assert grid.wires == sorted(set(columns["wire"][good].tolist()))

@@ -136,4 +136,6 @@ def test_a_signal_during_process(
     else:
         assert f"is already stored with this rig calibration as run {run_id}" in again.stdout
     assert stored(database, isolated_environment) is not None
-    assert [p.name.startswith("run-") for p in samples.iterdir()] == [True]
+    assert not list(samples.rglob(".*"))  # no hidden file left anywhere
+    (kept,) = samples.rglob("*.parquet")  # the stored processing's, at its key
+    assert kept.relative_to(samples).parts[:2] == ("line=demo-line", "track=1")

@@ -70,9 +70,10 @@ def test_a_run_killed_before_its_alerts_is_evaluated_by_processing_it_again(
     again = _process(small_run, config)
     assert_succeeded(again)
     first, alerts = again.stdout.splitlines()[:2]
-    assert first.endswith(
-        "is already stored with this rig calibration as run 1; its alerts were not evaluated "
-        "yet: evaluated now"
+    assert re.search(
+        r"is already stored with this rig calibration as run 1 \(UUID [0-9a-f-]{36}\); its "
+        "alerts were not evaluated yet: evaluated now$",
+        first,
     )
     assert alerts.startswith("alerts     ") and _new_alerts(alerts) > 0
     assert stored_runs() == ([1], [], _new_alerts(alerts))
@@ -113,9 +114,9 @@ def test_one_broken_track_does_not_stop_the_others(
 def test_a_process_killed_before_its_commit_leaves_no_samples_file_for_the_next_one(
     small_run: SmallRun, tmp_path: Path, isolated_environment: Path
 ) -> None:
-    """``kill -9`` once the samples file has the run's name but before the commit (SQLite's
-    commit waits for a reader to finish): no row, and the next ``process`` removes the file
-    the killed one named for its run, and stores the run with one samples file."""
+    """``kill -9`` once the samples file is in the store but before the commit (SQLite's
+    commit waits for a reader to finish): no row, and the next ``process`` removes the object
+    the killed one put in the store, and stores the run with one samples file."""
     config = alerting_config(tmp_path)
     samples = isolated_environment / "samples"
     with default_database(read_only=True) as reading:
@@ -126,7 +127,7 @@ def test_a_process_killed_before_its_commit_leaves_no_samples_file_for_the_next_
         )  # fmt: skip
         try:
             deadline = time.monotonic() + 60.0
-            while not list(samples.glob("run-*.parquet")):
+            while not _visible(samples):
                 assert killed.poll() is None, killed.communicate()[0]
                 assert time.monotonic() < deadline, "the process never named its samples file"
                 time.sleep(0.02)
@@ -138,4 +139,9 @@ def test_a_process_killed_before_its_commit_leaves_no_samples_file_for_the_next_
     assert_succeeded(again)
     assert stored_runs()[0] == [1]
     (line,) = [line for line in again.stdout.splitlines() if line.startswith("samples")]
-    assert [p.name for p in samples.iterdir()] == [Path(line.split(" in ")[1].split()[0]).name]
+    assert [p.name for p in _visible(samples)] == [Path(line.split(" in ")[1].split()[0]).name]
+
+
+def _visible(folder: Path) -> list[Path]:
+    """The samples files in the local store's folder (not the hidden ones being written)."""
+    return [p for p in folder.rglob("*.parquet") if not p.name.startswith(".")]

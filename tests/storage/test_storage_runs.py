@@ -35,9 +35,9 @@ def test_a_run_is_found_by_id_uuid_prefix_or_latest(migrated: Engine, build: Any
         assert find_run(session, "latest").id == ids[1]  # processed last
         with pytest.raises(UserError, match="several runs' UUIDs begin so"):
             find_run(session, "0a1b")
-        with pytest.raises(UserError, match="^no run 77 in the database$"):
+        with pytest.raises(UserError, match=r"^no run 77 in the database$"):
             find_run(session, "77")
-        with pytest.raises(UserError, match="^no run ffff in the database$"):
+        with pytest.raises(UserError, match=r"^no run ffff in the database$"):
             find_run(session, "ffff")
         for wrong in ("0a1", "run-1", ""):
             with pytest.raises(UserError, match="give a run id"):

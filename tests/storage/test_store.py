@@ -36,6 +36,7 @@ from catenary.storage.store import (
 from ..conftest import S3Server
 
 LINE, TRACK = "L/1=a b", "ü 2"
+RUN = "657013f6-2aaa-5b0b-a92e-4f39c3ba8bf8"
 
 
 def write_config(folder: Path, text: str) -> Path:
@@ -152,7 +153,7 @@ def make_file(path: Path, data: bytes) -> Path:
 
 def test_put_verify_open_exists_delete_keys(store: Store, tmp_path: Path) -> None:
     data = b"contact wire" * 1000
-    key = samples_key(LINE, TRACK, "run-1")
+    key = samples_key(LINE, TRACK, RUN, "run-1")
     stored = store.put_file(make_file(tmp_path / "a.bin", data), key)
     assert stored == StoredObject(key, len(data), hashlib.sha256(data).hexdigest())
     assert store.exists(key)
@@ -188,7 +189,7 @@ def test_delete_keeps_neighbours_and_emptied_folders_reusable(store: Store, tmp_
     """Deleting leaves the folder's other objects listed and readable, and an emptied folder
     takes new objects (pyarrow's folder markers would break both on rclone serve s3)."""
     source = make_file(tmp_path / "a.bin", b"abc")
-    first, second = samples_key(LINE, TRACK, "run-1"), samples_key(LINE, TRACK, "run-2")
+    first, second = samples_key(LINE, TRACK, RUN, "run-1"), samples_key(LINE, TRACK, RUN, "run-2")
     store.put_file(source, first)
     kept = store.put_file(source, second)
     store.delete(first)
@@ -268,12 +269,18 @@ def test_local_write_leaves_no_partial_file(isolated_environment: Path, tmp_path
 
 def test_samples_key_percent_encodes_line_and_track() -> None:
     assert (
-        samples_key(LINE, TRACK, "run-1")
-        == "samples/line=L%2F1%3Da%20b/track=%C3%BC%202/run-1.parquet"
+        samples_key(LINE, TRACK, RUN, "run-1")
+        == f"samples/line=L%2F1%3Da%20b/track=%C3%BC%202/run={RUN}/run-1.parquet"
     )
-    for line, track, name in [("", "1", "r"), ("L", "", "r"), ("L", "1", "a/b"), ("L", "1", "")]:
+    for line, track, run, name in [
+        ("", "1", RUN, "r"),
+        ("L", "1", "", "r"),
+        ("L", "1", "a/b", "r"),
+        ("L", "1", RUN, "a/b"),
+        ("L", "1", RUN, ""),
+    ]:
         with pytest.raises(ValueError):
-            samples_key(line, track, name)
+            samples_key(line, track, run, name)
 
 
 def test_samples_read_as_one_hive_dataset(store: Store, tmp_path: Path) -> None:
@@ -287,7 +294,8 @@ def test_samples_read_as_one_hive_dataset(store: Store, tmp_path: Path) -> None:
         )
         local = tmp_path / f"{number}.parquet"
         pq.write_table(table, local)
-        keys.append(store.put_file(local, samples_key(line, track, f"run-{number}")).key)
+        key = samples_key(line, track, f"{RUN[:-1]}{number}", f"run-{number}")
+        keys.append(store.put_file(local, key).key)
     assert store.keys("samples") == sorted(keys)
 
     dataset = store.dataset(keys)
@@ -295,7 +303,13 @@ def test_samples_read_as_one_hive_dataset(store: Store, tmp_path: Path) -> None:
         filter=(ds.field("chainage_m") >= 1075.0) & (ds.field("line") == LINE)
     ).to_pylist()
     assert rows == [
-        {"chainage_m": c, "residual_thickness_mm": 11.0, "line": LINE, "track": TRACK}
+        {
+            "chainage_m": c,
+            "residual_thickness_mm": 11.0,
+            "line": LINE,
+            "track": TRACK,
+            "run": f"{RUN[:-1]}0",
+        }
         for c in (1080.0, 1090.0)
     ]
     # the identifiers stay text even where they read as numbers

@@ -211,6 +211,7 @@ def compare(ctx: click.Context, run_a: str, run_b: str) -> None:
     from catenary.measurement.samples import run_profile
     from catenary.storage.database import open_database, session_scope
     from catenary.storage.runs import find_run
+    from catenary.storage.store import open_store
 
     settings = app_of(ctx).settings
     with (
@@ -220,7 +221,8 @@ def compare(ctx: click.Context, run_a: str, run_b: str) -> None:
         a, b = find_run(session, run_a), find_run(session, run_b)
         if a.track_id != b.track_id:
             raise UserError(f"runs {a.id} and {b.id} are on different tracks")
-        profiles = run_profile(settings, a), run_profile(settings, b)
+        store = open_store(settings)
+        profiles = run_profile(store, a), run_profile(store, b)
     try:
         comparison = compare_profiles(*profiles)
     except UserError as exc:

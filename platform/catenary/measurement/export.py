@@ -8,11 +8,12 @@ from sqlalchemy import select
 
 from catenary.config import Settings
 from catenary.errors import UserError
-from catenary.measurement.samples import export_schema, export_table, sample_tables, samples_file
+from catenary.measurement.samples import export_schema, export_table, run_samples, sample_tables
 from catenary.measurement.spans import SPAN_SCHEMA, span_table
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import SpanMeasurement
 from catenary.storage.runs import find_run
+from catenary.storage.store import open_store
 
 __all__ = ["EXPORTS", "export_run"]
 
@@ -38,6 +39,6 @@ def export_run(settings: Settings, reference: str, what: str, output: Path) -> t
             )
             written = export_table(iter([span_table(rows)]), SPAN_SCHEMA, output)
         else:
-            path = samples_file(settings, run)
-            written = export_table(sample_tables(path), export_schema(path), output)
+            samples = run_samples(open_store(settings), run)
+            written = export_table(sample_tables(samples), export_schema(samples), output)
         return written, run.id

@@ -61,7 +61,7 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator, Mapping
-from contextlib import AbstractContextManager, contextmanager
+from contextlib import AbstractContextManager, contextmanager, suppress
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -94,8 +94,9 @@ from catenary.measurement.spans import SpanAccumulator, SpanLayout, SpanStatisti
 from catenary.measurement.vehicle import load_vehicle_geometry
 from catenary.plugins import BlockProcessor, PluginRegistry, RunChecker
 from catenary.storage.database import open_database, session_scope
-from catenary.storage.models import Processing, SpanMeasurement
+from catenary.storage.models import Processing, SpanMeasurement, run_uuid
 from catenary.storage.runs import find_stored_run, settings_sha256, store_processing
+from catenary.storage.store import Store, StoreError, open_store, samples_key
 from catenary.text import length_problem
 from catenary.wiretype import WireType
 
@@ -183,7 +184,10 @@ class ProcessResult:
     uncertain: int = 0
     """Samples the processor could not decide are the contact wire (``selection_uncertain``)."""
     minimum: SpanMeasurement | None = None
-    samples_path: Path | None = None
+    samples_key: str | None = None
+    """The samples file's key in the store."""
+    samples_where: str = ""
+    """The samples file's store and key, for people."""
     sensors: str = ""
     """The vehicle sensors' filter and estimated noise (``SensorSmoother.describe``)."""
 
@@ -237,7 +241,7 @@ class ProcessResult:
                 "span figures)"
             )
         extra = f" ({'; '.join(notes)})" if notes else ""
-        lines.append(f"samples    {self.samples} in {self.samples_path}{extra}")
+        lines.append(f"samples    {self.samples} in {self.samples_where}{extra}")
         if self.sensors:
             lines.append(f"sensors    {self.sensors}")
         if self.replaced:
@@ -587,23 +591,28 @@ def database_fingerprint(engine: Engine) -> str:
 
 
 def remove_abandoned_scratch(
-    folder: Path, now_s: float | None = None, *, engine: Engine | None = None
-) -> list[Path]:
+    folder: Path,
+    now_s: float | None = None,
+    *,
+    engine: Engine | None = None,
+    store: Store | None = None,
+) -> list[str]:
     """Remove the hidden files that processes of this host left in the samples folder when
-    they were killed (``kill -9``, a power cut) and return them; a file whose process still
-    runs, or another host's, is left alone. A file named without its process (written before
-    the names carried one) is removed once ``LEGACY_SCRATCH_AGE_S`` old.
+    they were killed (``kill -9``, a power cut) and return them (paths, and store keys); a
+    file whose process still runs, or another host's, is left alone. A file named without its
+    process (written before the names carried one) is removed once ``LEGACY_SCRATCH_AGE_S``
+    old.
 
-    A process killed while it stored its run leaves its hidden samples file beside the run's
-    samples file (``run-{id}-{token}.parquet``, a second name of the same file), committed or
-    not. With ``engine``, for a pair of its database (the token ends with its
-    ``database_fingerprint``) the run's file is kept when a run of the database refers to it,
-    and removed with the hidden one when none does; another database's pair is left for its
-    own next process, and so is every pair without ``engine``.
+    A process killed while it stored its run may have put the samples file in the store
+    (under its processing's UUID, which its hidden files' token begins with) without
+    committing the processing. With ``engine`` and ``store``, for a hidden samples file of the
+    database (the token ends with its ``database_fingerprint``) whose processing is not in the
+    database, that object is removed from the store; another database's hidden samples file
+    is left for its own next process, and so is every one without ``engine`` and ``store``.
     """
     host, now_s = socket.gethostname(), time.time() if now_s is None else now_s
     database = "" if engine is None else database_fingerprint(engine)
-    removed = []
+    removed: list[str] = []
     for path in [*folder.glob(".pass1-*.parquet"), *folder.glob(".samples-*.parquet")]:
         kind, named = path.name[1 : -len(".parquet")].split("-", 1)
         parts = named.rsplit("-", 2)
@@ -616,26 +625,30 @@ def remove_abandoned_scratch(
                 continue
         if not abandoned:
             continue
-        placed = list(folder.glob(f"run-*-{parts[-1]}.parquet")) if kind == "samples" else []
-        if placed:
-            if engine is None or not parts[-1].endswith(database):
-                continue  # another database's run: for it to tell whether it was committed
-            for run_file in placed:
-                if not _refers_to(engine, run_file.relative_to(folder.parent)):
-                    run_file.unlink(missing_ok=True)
-                    removed.append(run_file)
+        token = parts[-1]
+        if kind == "samples" and len(token) == TOKEN_LENGTH:
+            if engine is None or store is None or not token.endswith(database):
+                continue  # for its own database's next process to tell if it was committed
+            made = str(uuid.UUID(token[:32]))
+            if not _committed(engine, made):
+                stray = [k for k in store.keys(SAMPLES_DIR) if k.endswith(f"/{made}.parquet")]
+                for key in stray:
+                    store.delete(key)
+                removed.extend(stray)
         path.unlink(missing_ok=True)
-        removed.append(path)
+        removed.append(str(path))
     return removed
 
 
-def _refers_to(engine: Engine, samples: Path) -> bool:
-    """Whether a run of the database has the samples file ``samples`` (relative to the data
-    directory)."""
+TOKEN_LENGTH = 40
+"""The token in the hidden files' names: the processing's UUID (32 hex digits) and the
+database's fingerprint (8)."""
+
+
+def _committed(engine: Engine, processing_uuid: str) -> bool:
+    """Whether the database holds the processing ``processing_uuid``."""
     with session_scope(engine, read_only=True) as session:
-        found = session.scalar(
-            select(Processing.id).where(Processing.samples_key == str(samples)).limit(1)
-        )
+        found = session.scalar(select(Processing.id).where(Processing.uuid == processing_uuid))
         return found is not None
 
 
@@ -715,6 +728,7 @@ def _process_open_run(
     processor, geometry = _processor(request, run_file.header, registry, settings)
     made_with = processing_settings(request, settings, inputs.vehicle_filter_hz)
     rig_sha256 = hashlib.sha256(inputs.rig_text.encode("utf-8")).hexdigest()
+    store = open_store(settings)
     with open_database(settings, batch=True) as engine:
         with session_scope(engine, read_only=True) as session:
             stored = find_stored_run(session, inputs.source_sha256, rig_sha256)
@@ -736,12 +750,16 @@ def _process_open_run(
             raise UserError(
                 f"{folder}: cannot create the samples folder ({exc.strerror})"
             ) from None
-        remove_abandoned_scratch(folder, engine=engine)
-        token = uuid.uuid4().hex[:12] + database_fingerprint(engine)
+        remove_abandoned_scratch(folder, engine=engine, store=store)
+        made = uuid.uuid4()
+        token = made.hex + database_fingerprint(engine)
         measured = folder / _scratch_name("pass1", token)
         partial = folder / _scratch_name("samples", token)
-        final: Path | None = None
-        kept: Path | None = None
+        key = samples_key(
+            inputs.line, inputs.track, run_uuid(inputs.source_sha256, rig_sha256), str(made)
+        )
+        placed: str | None = None  # the samples file in the store, until the commit
+        kept: str | None = None
         try:
             with SampleWriter(measured, _MEASURED_SCHEMA) as writer:
                 finder, last_position, smoother = _measure(
@@ -798,7 +816,7 @@ def _process_open_run(
                                 alerts_evaluated_at=None,  # new or replaced spans: pending
                             ),
                             processing_values=dict(
-                                uuid=str(uuid.uuid4()),
+                                uuid=str(made),
                                 processor=request.processor,
                                 package_version=PACKAGE_VERSION,
                                 settings=made_with,
@@ -815,15 +833,18 @@ def _process_open_run(
                                 else None,
                             ),
                         )
-                        # the run's name for the file; the hidden one names this process
-                        # until the commit, so that a kill before or after it is told apart
-                        # and tidied (remove_abandoned_scratch)
-                        final = folder / f"run-{run.id}-{token}.parquet"
-                        os.link(partial, final)
-                        processing.samples_key = str(final.relative_to(settings.data_dir))
+                        # into the store before the commit; the hidden file names this
+                        # process and the processing until the commit, so that a kill
+                        # before or after it is told apart and tidied
+                        # (remove_abandoned_scratch)
+                        placed = key
+                        written = store.put_file(partial, key)
+                        processing.samples_key = written.key
+                        processing.samples_size_bytes = written.size_bytes
+                        processing.samples_sha256 = written.sha256
                         session.flush()
-                        run_id, run_uuid, processing_uuid = run.id, run.uuid, processing.uuid
-                    kept, final = final, None  # the stored run's: never removed from here on
+                        stored_ids = run.id, run.uuid, processing.uuid
+                    kept, placed = placed, None  # the stored run's: never removed from here on
             except IntegrityError:
                 # PostgreSQL: a concurrent process stored the same run first; this insert
                 # waited for its commit and then broke a unique key
@@ -834,9 +855,11 @@ def _process_open_run(
                 raise _StoredMeanwhile(stored.id, stored.uuid) from None
             partial.unlink()
         except BaseException as exc:
-            for path in (measured, partial, final):
-                if path is not None:
-                    path.unlink(missing_ok=True)
+            for path in (measured, partial):
+                path.unlink(missing_ok=True)
+            if placed is not None:
+                with suppress(StoreError):  # unreachable: the next process removes it
+                    store.delete(placed)
             if isinstance(exc, _StoredMeanwhile):
                 return ProcessResult(
                     run_id=exc.run_id,
@@ -845,13 +868,14 @@ def _process_open_run(
                     header=inputs.header,
                 )
             if isinstance(exc, KeyboardInterrupt) and kept is not None:
-                raise StoredThenInterrupted(run_id, exc) from None
+                raise StoredThenInterrupted(stored_ids[0], exc) from None
             raise
+    run_id, stored_uuid, processing_uuid = stored_ids
     registry.run_stored(run_id, settings.database_url)
     minimum = min(span_rows, key=lambda r: r.min_residual_thickness_mm, default=None)
     return ProcessResult(
         run_id=run_id,
-        run_uuid=run_uuid,
+        run_uuid=stored_uuid,
         processing_uuid=processing_uuid,
         already_stored=False,
         replaced=replaced is not None,
@@ -868,6 +892,7 @@ def _process_open_run(
         faulty=faulty,
         uncertain=uncertain,
         minimum=minimum,
-        samples_path=kept,
+        samples_key=kept,
+        samples_where=store.describe(kept),
         sensors=smoother.describe(),
     )

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager, suppress
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -28,12 +29,12 @@ import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
 from catenary.arrays import BoolArray
-from catenary.config import Settings
 from catenary.errors import FormatError, UserError
 from catenary.measurement.compare import RunProfile
 from catenary.measurement.spreadsheet import for_people
 from catenary.storage.models import Run
 from catenary.storage.runs import latest_processing
+from catenary.storage.store import Store, check_key
 
 __all__ = [
     "ADDED_COLUMNS",
@@ -41,10 +42,11 @@ __all__ = [
     "SAMPLES_SCHEMA",
     "TRUST_COLUMNS",
     "SampleWriter",
+    "StoredSamples",
     "export_table",
     "read_sample_batches",
     "run_profile",
-    "samples_file",
+    "run_samples",
     "trusted",
 ]
 
@@ -159,17 +161,39 @@ class SampleWriter:
             self.abort()
 
 
-def _open(path: Path) -> pq.ParquetFile:
+@dataclass(frozen=True)
+class StoredSamples:
+    """A samples file in the store: ``key`` in ``store``."""
+
+    store: Store
+    key: str
+
+    def __str__(self) -> str:
+        return self.store.describe(self.key)
+
+    @property
+    def name(self) -> str:
+        """The file's name (the key's last part)."""
+        return self.key.rsplit("/", 1)[-1]
+
+
+SamplesSource = Path | StoredSamples
+"""A samples file: a local file (the pipeline's own) or one in the store."""
+
+
+def _open(source: SamplesSource) -> pq.ParquetFile:
     try:
-        return pq.ParquetFile(path)
+        if isinstance(source, StoredSamples):
+            return pq.ParquetFile(source.store.open_input(source.key))
+        return pq.ParquetFile(source)
     except FileNotFoundError:
-        raise UserError(f"{path}: samples file not found") from None
+        raise UserError(f"{source}: samples file not found") from None
     except (pa.ArrowInvalid, OSError) as exc:
-        raise FormatError(path, f"not a readable Parquet file ({exc})") from None
+        raise FormatError(source, f"not a readable Parquet file ({exc})") from None
 
 
 def _columns(
-    path: Path, handle: pq.ParquetFile, wanted: Iterable[str]
+    path: SamplesSource, handle: pq.ParquetFile, wanted: Iterable[str]
 ) -> tuple[list[str], list[str]]:
     """The ``wanted`` columns the file holds, and those it lacks from ``ADDED_COLUMNS`` (an
     older version's file); a ``FormatError`` for any other it lacks."""
@@ -181,7 +205,7 @@ def _columns(
 
 
 def read_sample_batches(
-    path: Path, columns: list[str] | None = None
+    path: SamplesSource, columns: list[str] | None = None
 ) -> Iterator[dict[str, np.ndarray[Any, Any]]]:
     """The samples of a file (``columns``, default all, with those of ``ADDED_COLUMNS`` an
     older file lacks filled in), row group by row group, as NumPy columns."""
@@ -236,7 +260,9 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
     return rows
 
 
-def sample_tables(path: Path, columns: tuple[str, ...] = EXPORT_COLUMNS) -> Iterator[pa.Table]:
+def sample_tables(
+    path: SamplesSource, columns: tuple[str, ...] = EXPORT_COLUMNS
+) -> Iterator[pa.Table]:
     """The samples file's row groups as tables of ``columns`` (those of ``ADDED_COLUMNS`` an
     older file lacks filled in), in that order."""
     handle = _open(path)
@@ -253,7 +279,7 @@ def sample_tables(path: Path, columns: tuple[str, ...] = EXPORT_COLUMNS) -> Iter
         )
 
 
-def export_schema(path: Path, columns: tuple[str, ...] = EXPORT_COLUMNS) -> pa.Schema:
+def export_schema(path: SamplesSource, columns: tuple[str, ...] = EXPORT_COLUMNS) -> pa.Schema:
     """The schema of ``columns`` of a samples file (an older file's as the current one's)."""
     schema = _open(path).schema_arrow
     return pa.schema(
@@ -261,21 +287,27 @@ def export_schema(path: Path, columns: tuple[str, ...] = EXPORT_COLUMNS) -> pa.S
     )
 
 
-def samples_file(settings: Settings, run: Run) -> Path:
-    """The samples Parquet file of the run's latest processing (``Processing.samples_key``,
-    relative to the data directory unless absolute)."""
+def run_samples(store: Store, run: Run) -> StoredSamples:
+    """The samples file of the run's latest processing in ``store``
+    (``Processing.samples_key``)."""
     key = latest_processing(run).samples_key
     if not key:
         raise UserError(f"run {run.id} has no samples file")
-    path = Path(key)
-    return path if path.is_absolute() else settings.data_dir / path
+    try:
+        check_key(key)
+    except ValueError:
+        raise UserError(
+            f"run {run.id}: its samples file {key!r} is not a store key (a path outside the "
+            "data directory, stored by hand?)"
+        ) from None
+    return StoredSamples(store, key)
 
 
-def run_profile(settings: Settings, run: Run) -> RunProfile:
+def run_profile(store: Store, run: Run) -> RunProfile:
     """The run's samples for ``compare_profiles``: those that count (``trusted``), the
     stagger in the line frame (positive to the right looking toward increasing chainage)."""
     columns = ["chainage_m", "wire", "stagger_mm", "residual_thickness_mm", *TRUST_COLUMNS]
-    parts = list(read_sample_batches(samples_file(settings, run), columns))
+    parts = list(read_sample_batches(run_samples(store, run), columns))
     values = {c: np.concatenate([p[c] for p in parts]) for c in columns} if parts else None
     if values is None:
         raise UserError(f"run {run.id} has no samples")

@@ -113,9 +113,10 @@ def store_processing(
     Adds what is new of its line, track and masts (``register``), its vehicle and rig
     calibration (versioned by content) and the run (``run_values``: ``Run`` columns), or,
     ``replacing``, updates the run stored (its identity: ``source_sha256`` and the
-    calibration's content); then the processing (``processing_values``: ``Processing`` columns) with its span
-    measurements, which becomes the run's latest: its earlier processings stay, unseen by
-    alerts, reports and exports. Returns both, flushed (they have their ids).
+    calibration's content); then the processing (``processing_values``: ``Processing``
+    columns) with its span measurements, which becomes the run's latest: its earlier
+    processings stay, unseen by alerts, reports and exports. Returns both, flushed (they
+    have their ids).
 
     A new run is inserted without looking for it: if another transaction stored it
     meanwhile, the insert breaks the identity's unique key (``IntegrityError``).

@@ -78,21 +78,28 @@ def check_key(key: str) -> str:
     return key
 
 
-def samples_key(line: str, track: str, name: str) -> str:
-    """``samples/line=LINE/track=TRACK/NAME.parquet``, the line and track percent-encoded
+def samples_key(line: str, track: str, run: str, name: str) -> str:
+    """``samples/line=LINE/track=TRACK/run=RUN/NAME.parquet``: the samples file ``NAME`` (a
+    processing's UUID) of the run whose UUID is ``RUN``, the line and track percent-encoded
     (any text is safe; ``pyarrow.dataset``'s hive partitioning decodes them)."""
-    if not line or not track:
-        raise ValueError(f"samples key needs a line and a track, not {line!r}, {track!r}")
-    if "/" in name:
-        raise ValueError(f"samples file name {name!r} holds '/'")
-    return check_key(
-        f"{SAMPLES_PREFIX}/line={quote(line, safe='')}/track={quote(track, safe='')}/{name}.parquet"
-    )
+    if not line or not track or not run:
+        raise ValueError(
+            f"samples key needs a line, track and run, not {line!r}, {track!r}, {run!r}"
+        )
+    if "/" in name or "/" in run:
+        raise ValueError(f"samples file name {name!r} or run {run!r} holds '/'")
+    parts = (f"line={quote(line, safe='')}", f"track={quote(track, safe='')}", f"run={run}")
+    return check_key(f"{SAMPLES_PREFIX}/{'/'.join(parts)}/{name}.parquet")
+
+
+PARTITION_COLUMNS = ("line", "track", "run")
+"""The columns a samples file's key gives it in the fleet's dataset (``samples_key``)."""
 
 
 def samples_partitioning() -> ds.Partitioning:
-    """The hive partitioning of samples keys: ``line`` and ``track`` as (decoded) strings."""
-    schema = pa.schema([("line", pa.string()), ("track", pa.string())])
+    """The hive partitioning of samples keys: ``line``, ``track`` and ``run`` (the run's
+    UUID) as (decoded) strings."""
+    schema = pa.schema([(name, pa.string()) for name in PARTITION_COLUMNS])
     return ds.partitioning(schema, flavor="hive")
 
 
@@ -208,6 +215,14 @@ class Store:
             return
         with suppress(FileNotFoundError):
             self.filesystem.delete_file(key)
+        if self._folder is not None:  # folders emptied go too, as on S3, but the top one
+            parent = (self._folder / key).parent
+            while parent.parent != self._folder and parent != self._folder:
+                try:
+                    parent.rmdir()
+                except OSError:  # not empty, or already gone
+                    break
+                parent = parent.parent
 
     def digest(self, key: str) -> StoredObject:
         """Read ``key`` whole (streamed) and give its size and SHA-256."""
@@ -278,8 +293,8 @@ class Store:
         return sorted(found)
 
     def dataset(self, keys: Sequence[str]) -> ds.Dataset:
-        """The samples files ``keys`` as one Parquet dataset with ``line`` and ``track``
-        columns from their keys (filters on any column are pushed down to the files)."""
+        """The samples files ``keys`` as one Parquet dataset with ``line``, ``track`` and
+        ``run`` columns from their keys (filters on any column are pushed down to the files)."""
         for key in keys:
             check_key(key)
         with self._errors("open as a dataset", keys[0] if keys else ""):
