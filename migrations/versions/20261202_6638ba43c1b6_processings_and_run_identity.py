@@ -6,7 +6,8 @@ name-based UUID, the same on every machine). What a run measured moves to ``proc
 row per processing (processor, package version, settings and their hash, rig calibration, when,
 the chainage alignment, the length, the samples file's key, size and SHA-256);
 ``span_measurements.processing_id`` names the processing a row belongs to, and
-``runs.processing_id`` the run's latest. Each existing run becomes its first processing, with
+``runs.processing_id`` the run's latest; ``runs.source_key`` the run file in the store once it
+is sent there. Each existing run becomes its first processing, with
 its processor, package version and settings "unrecorded" (they were not kept) and its samples
 file's key the path it had (relative to the data directory, the local store's root).
 
@@ -199,6 +200,7 @@ def upgrade() -> None:
         batch_op.add_column(sa.Column("uuid", sa.String(length=36), nullable=True))
         batch_op.add_column(sa.Column("rig_sha256", sa.String(length=64), nullable=True))
         batch_op.add_column(sa.Column("processing_id", sa.Integer(), nullable=True))
+        batch_op.add_column(sa.Column("source_key", sa.String(length=1024), nullable=True))
     with op.batch_alter_table("span_measurements", schema=None) as batch_op:
         batch_op.add_column(sa.Column("processing_id", sa.Integer(), nullable=True))
 
@@ -283,6 +285,7 @@ def downgrade() -> None:
             ["source_sha256", "rig_calibration_id"],
         )
         batch_op.drop_column("processing_id")
+        batch_op.drop_column("source_key")
         batch_op.drop_column("rig_sha256")
         batch_op.drop_column("uuid")
 

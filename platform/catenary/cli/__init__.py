@@ -15,6 +15,7 @@ import click
 
 from catenary.cli import app
 from catenary.cli.db import db
+from catenary.cli.fleet import pull, push
 from catenary.cli.maintenance import alerts, maintenance
 from catenary.cli.plugins import plugins_command
 from catenary.cli.record import record
@@ -54,6 +55,8 @@ for _command in (
     process,
     export,
     compare,
+    push,
+    pull,
     notify,
     scheduler,
     report,

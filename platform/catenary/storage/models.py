@@ -256,6 +256,8 @@ class Run(Base):
     )
     source_file: Mapped[str] = mapped_column(String(PATH_LENGTH))
     source_sha256: Mapped[str] = mapped_column(String(SHA256_LENGTH))
+    # the run file in the store (``runs/RUN.h5``), once it was sent there (push --run-files)
+    source_key: Mapped[str | None] = mapped_column(String(PATH_LENGTH))
     rig_sha256: Mapped[str] = mapped_column(String(SHA256_LENGTH))
     started_at: Mapped[datetime]
     scans: Mapped[int] = mapped_column(Integer, default=0)

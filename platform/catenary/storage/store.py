@@ -249,6 +249,11 @@ class Store:
                 f"SHA-256 {sha256})"
             )
 
+    def local_path(self, key: str) -> Path | None:
+        """The file of ``key`` on this machine when the store is a folder, else None."""
+        check_key(key)
+        return None if self._folder is None else self._folder / key
+
     def open_input(self, key: str) -> pa.NativeFile:
         """``key`` as a random-access file (``pyarrow.parquet.ParquetFile(...)`` reads it);
         errors once open are the filesystem's ``OSError``."""

@@ -1,0 +1,1 @@
+"""What crosses machines: push and pull between vehicles and the central side."""
