@@ -21,11 +21,18 @@ _CENTRAL = click.Path(path_type=Path, dir_okay=False)
 def central_settings(path: Path) -> Settings:
     """The central side's settings: its config file alone (this machine's
     ``CATENARY_DATABASE_URL``, ``CATENARY_DATA_DIR`` and ``CATENARY_CONFIG`` name this side,
-    not that one); it must name its database."""
+    not that one); it must name its database and its store (``[store] url``, or a shared
+    ``[paths] data_dir``)."""
     from catenary.config import load_settings, read_config_file
 
-    if "url" not in read_config_file(path).get("database", {}):
+    config = read_config_file(path)
+    if "url" not in config.get("database", {}):
         raise UserError(f"{path}: [database] url is missing: name the central side's database")
+    if "url" not in config.get("store", {}) and "data_dir" not in config.get("paths", {}):
+        raise UserError(
+            f"{path}: [store] url is missing: name the central side's store (or its shared "
+            "[paths] data_dir)"
+        )
     return load_settings(config_path=path, environ={})
 
 
