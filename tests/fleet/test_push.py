@@ -121,6 +121,7 @@ def test_runs_processed_offline_are_pushed_whole_and_read_centrally(
 
     output = succeeded(depot.on_vehicle("push", "--to", depot.central))
     assert "pushed 2 new run(s), 2 processing(s), 2 object(s)" in output
+    assert f"run {first}: processing " in output and f"run {second}: processing " in output
     assert "alerts     " in output and "central" in output
     # the vehicle's data directory goes: the central side has all it needs
     shutil.rmtree(depot.data_dir)

@@ -85,10 +85,12 @@ def push(ctx: click.Context, central_path: Path, run_files: bool) -> None:
     finally:
         if bar:
             bar[0].__exit__(None, None, None)
+    for run_uuid, processing_uuid, size in result.moved:
+        click.echo(f"run {run_uuid}: processing {processing_uuid} ({_megabytes(size)})")
     click.echo(
         f"pushed {result.runs} new run(s), {result.processings} processing(s), "
-        f"{result.objects} object(s) ({_megabytes(result.bytes)}); "
-        f"{result.already} processing(s) the central side had"
+        f"{result.objects} object(s) ({_megabytes(result.bytes)})"
+        + (f"; {result.already} stored meanwhile by another push" if result.already else "")
     )
     if not result.run_ids:
         return

@@ -85,8 +85,10 @@ class PushResult:
     objects: int = 0
     bytes: int = 0
     already: int = 0
-    """Processings the central side had."""
+    """Processings another push stored meanwhile."""
     run_ids: list[int] = field(default_factory=list)
+    moved: list[tuple[str, str, int]] = field(default_factory=list)
+    """Each processing stored centrally: its run's UUID, its own and its samples' bytes."""
 
 
 @dataclass(frozen=True)
@@ -141,6 +143,7 @@ def push(
                 run_id, stored, latest = _commit(central_engine, item, placed, source)
                 if stored:
                     result.processings += 1
+                    result.moved.append((item.run.uuid, item.processing.uuid, placed.size_bytes))
                     if item.run.uuid not in new_runs and stored == "run":
                         result.runs += 1
                     new_runs.add(item.run.uuid)
