@@ -1,0 +1,1 @@
+"""What crosses machines, and the fleet's data for analysts (``catenary.fleet.analysts``)."""
