@@ -30,7 +30,7 @@ from catenary.fleet.analysts import (
 from catenary.measurement.samples import SAMPLES_SCHEMA, SampleWriter
 from catenary.storage.database import session_scope
 from catenary.storage.models import MaintenanceAction, Track
-from catenary.storage.store import Store, open_store, samples_key
+from catenary.storage.store import Store, StoreError, open_store, samples_key
 
 from ..conftest import Build
 
@@ -336,6 +336,13 @@ def test_samples_of_a_chainage_range(data: FleetData, fleet: Fleet) -> None:
         data.samples("L100", "1", 1000.0, 1010.0, runs=["0000"])
 
 
+def test_a_missing_samples_object_is_a_one_line_error(data: FleetData) -> None:
+    data.store.delete(LEGACY_KEY)
+    with pytest.raises(StoreError, match=f"cannot (open|read) the samples: .*{LEGACY_KEY}") as err:
+        data.samples("L100", "1", 1000.0, 1010.0)
+    assert "\n" not in str(err.value)
+
+
 def test_a_range_reads_only_its_row_groups(data: FleetData, fleet: Fleet) -> None:
     key = data.runs("L100", "1")["samples_key"].iloc[0]
     metadata = pq.ParquetFile(data.store.filesystem.open_input_file(key)).metadata
@@ -357,3 +364,13 @@ def test_samples_in_an_s3_store(
     with FleetData.open(fleet.config, database_url=database_url) as data:
         assert data.store.url.startswith("s3://")
         check_range(data, fleet, 1040.0, 1041.0)
+
+
+def test_opening_a_missing_database_is_a_user_error(tmp_path: Path) -> None:
+    missing = tmp_path / "none.sqlite"
+    with pytest.raises(UserError, match=r"none\.sqlite") as err:
+        FleetData.open(database_url=f"sqlite:///{missing}")
+    assert "\n" not in str(err.value)
+    assert not missing.exists()
+    with pytest.raises(UserError, match="config file not found"):
+        FleetData.open(tmp_path / "nowhere.toml")

@@ -157,6 +157,11 @@ def _frame(rows: Sequence[Any], dtypes: Mapping[str, str]) -> pd.DataFrame:
     return frame.astype(dict(dtypes))
 
 
+def _one_line(exc: BaseException) -> str:
+    """An exception's message on one line."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
 def _utc(name: str, value: datetime | None) -> datetime | None:
     """``value`` in UTC; a naive ``datetime`` is a ``UserError`` (its zone would be a guess)."""
     if value is None:
@@ -181,8 +186,9 @@ class FleetData:
         cls, config: str | Path | None = None, *, database_url: str | None = None
     ) -> FleetData:
         """The fleet of the config file ``config`` (default: as the commands find it) or of
-        ``database_url``; its database must be migrated. The store is opened when samples are
-        first read."""
+        ``database_url``; its database must be migrated. The config's statement timeout of
+        interactive commands applies (``[database] statement_timeout_s``). The store is opened
+        when samples are first read."""
         settings = load_settings(
             config_path=None if config is None else Path(config), database_url=database_url
         )
@@ -486,7 +492,9 @@ class FleetData:
                 partitions=[ds.field("run") == run for run, _ in files],
             )
         except (OSError, pa.ArrowInvalid) as exc:
-            raise StoreError(f"{self.store.url}: cannot open the samples: {exc}") from None
+            raise StoreError(
+                f"{self.store.url}: cannot open the samples: {_one_line(exc)}"
+            ) from None
 
     def samples(
         self,
@@ -519,7 +527,9 @@ class FleetData:
         try:
             table = dataset.to_table(columns=[*wanted, "run"], filter=inside)
         except (OSError, pa.ArrowInvalid) as exc:
-            raise StoreError(f"{self.store.url}: cannot read the samples: {exc}") from None
+            raise StoreError(
+                f"{self.store.url}: cannot read the samples: {_one_line(exc)}"
+            ) from None
         for name, value in ADDED_COLUMNS.items():
             if name in wanted:
                 at = table.schema.get_field_index(name)
