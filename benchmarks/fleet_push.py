@@ -41,12 +41,13 @@ from sqlalchemy.engine import make_url
 
 from catenary.config import load_settings
 from catenary.domain import TrackRegister, VehicleGeometry
+from catenary.fleet.analysts import FleetData
 from catenary.measurement.samples import SampleWriter
 from catenary.storage import migrate
 from catenary.storage.database import make_engine, session_scope
 from catenary.storage.models import SpanMeasurement, run_uuid
 from catenary.storage.runs import settings_sha256, store_processing
-from catenary.storage.store import open_store, samples_key
+from catenary.storage.store import Store, open_store, samples_key
 
 SAMPLES_PER_M = 33.0
 SPAN_M = 50.0
@@ -87,11 +88,9 @@ def write_samples(path: Path, length_m: float, seed: int) -> int:
     return rows
 
 
-def store_run(database_url: str, data_dir: Path, length_m: float, seed: int) -> str:
-    """A synthetic processed run stored in ``database_url`` and the store of ``data_dir``'s
-    settings (its samples file and span rows), as ``catenary process`` stores one; returns its
-    UUID."""
-    settings = load_settings(database_url=database_url, environ={"CATENARY_DATA_DIR": str(data_dir)})
+def store_run(database_url: str, store: Store, length_m: float, seed: int) -> str:
+    """A synthetic processed run stored in ``database_url`` and ``store`` (its samples file
+    and span rows), as ``catenary process`` stores one; returns its UUID."""
     spans = math.ceil(length_m / SPAN_M)
     masts = np.arange(spans + 1) * SPAN_M + START_M
     register = TrackRegister(
@@ -105,17 +104,8 @@ def store_run(database_url: str, data_dir: Path, length_m: float, seed: int) -> 
         local = Path(scratch) / "samples.parquet"
         write_samples(local, length_m, seed)
         key = samples_key(LINE, TRACK, run_uuid(source, rig_sha256), made)
-        placed = open_store(settings).put_file(local, key)
-    rows = [
-        SpanMeasurement(
-            span=k, mast_from=register.mast[k], mast_to=register.mast[k + 1],
-            start_chainage_m=masts[k], end_chainage_m=masts[k + 1], wire=0, wire_type="CTA120",
-            min_residual_thickness_mm=11.3, min_at_chainage_m=masts[k] + 10.0,
-            mean_residual_thickness_mm=11.5, height_min_mm=5290.0, height_max_mm=5310.0,
-            stagger_min_mm=-200.0, stagger_max_mm=200.0, samples=int(SPAN_M * SAMPLES_PER_M),
-        )  # fmt: skip
-        for k in range(spans)
-    ]
+        placed = store.put_file(local, key)
+    rows = [span_row(register, k) for k in range(spans)]
     started = datetime(2026, 1, 1, tzinfo=UTC) + timedelta(days=seed)
     engine = make_engine(database_url)
     try:
@@ -138,6 +128,28 @@ def store_run(database_url: str, data_dir: Path, length_m: float, seed: int) -> 
             return run.uuid
     finally:
         engine.dispose()
+
+
+def span_row(register: TrackRegister, k: int) -> SpanMeasurement:
+    """Span ``k``'s row (from mast ``k`` to the next), its figures plausible."""
+    start, end = register.chainage_m[k], register.chainage_m[k + 1]
+    return SpanMeasurement(
+        span=k,
+        mast_from=register.mast[k],
+        mast_to=register.mast[k + 1],
+        start_chainage_m=start,
+        end_chainage_m=end,
+        wire=0,
+        wire_type="CTA120",
+        min_residual_thickness_mm=11.3,
+        min_at_chainage_m=start + 10.0,
+        mean_residual_thickness_mm=11.5,
+        height_min_mm=5290.0,
+        height_max_mm=5310.0,
+        stagger_min_mm=-200.0,
+        stagger_max_mm=200.0,
+        samples=int((end - start) * SAMPLES_PER_M),
+    )
 
 
 @contextmanager
@@ -212,7 +224,8 @@ def push_case(folder: Path, base: str, endpoint: str, length_m: float, env: dict
     engine = make_engine(vehicle)
     migrate.upgrade(engine)
     engine.dispose()
-    store_run(vehicle, vehicle_data, length_m, seed=int(length_m))
+    folder_store = open_store(load_settings(environ={"CATENARY_DATA_DIR": str(vehicle_data)}))
+    store_run(vehicle, folder_store, length_m, seed=int(length_m))
     size = sum(p.stat().st_size for p in vehicle_data.rglob("*.parquet"))
     with postgres_schema(base) as central_url:
         config = central_config(folder, central_url, endpoint)
@@ -225,7 +238,7 @@ def push_case(folder: Path, base: str, endpoint: str, length_m: float, env: dict
         f"push {length_m / 1000:6.1f} km: {rows:>10,} samples, {size / 1e6:7.1f} MB, "
         f"{seconds:6.1f} s ({size / 1e6 / seconds:5.1f} MB/s), peak RSS {peak:6.0f} MiB"
     )
-    print("   " + output.strip().splitlines()[-1])
+    print("   " + next(line for line in output.splitlines() if line.startswith("pushed")))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -244,7 +257,30 @@ def main(argv: list[str] | None = None) -> int:
         folder = Path(tmp)
         for km in (args.short_km, args.km):
             push_case(folder, args.db, endpoint, km * 1000.0, env)
+        read_case(folder, args.db, endpoint, args.runs, args.read_km * 1000.0)
     return 0
+
+
+def read_case(folder: Path, base: str, endpoint: str, runs: int, length_m: float) -> None:
+    """``runs`` runs of ``length_m`` stored centrally; one span of all of them read."""
+    with postgres_schema(base) as central_url:
+        config = central_config(folder, central_url, endpoint)
+        store = open_store(load_settings(config_path=config, environ={}))
+        started = time.perf_counter()
+        for seed in range(runs):
+            store_run(central_url, store, length_m, seed=1000 + seed)
+        print(f"stored {runs} runs of {length_m / 1000:.1f} km centrally in "
+              f"{time.perf_counter() - started:.0f} s")  # fmt: skip
+        middle = START_M + SPAN_M * (length_m // SPAN_M // 2)
+        with FleetData.open(config) as fleet:
+            for label in ("cold", "warm", "warm"):
+                started = time.perf_counter()
+                samples = fleet.samples(LINE, TRACK, middle, middle + SPAN_M)
+                seconds = time.perf_counter() - started
+                print(
+                    f"one span of {samples['run'].nunique()} runs ({len(samples):,} samples, "
+                    f"{label}): {seconds:.2f} s"
+                )
 
 
 if __name__ == "__main__":
