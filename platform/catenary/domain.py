@@ -153,6 +153,10 @@ class WireObservations:
         return int(self.scan.shape[0])
 
 
+OPTIONAL_MAST_NUMBERS = ("design_height_mm", "line_speed_kmh", "latitude", "longitude")
+"""The register's optional numeric columns beside ``design_stagger_mm`` (``TrackRegister``)."""
+
+
 @dataclass(frozen=True)
 class TrackRegister:
     """The masts of one line and track, sorted by chainage (each ``(k,)``)."""
@@ -164,6 +168,12 @@ class TrackRegister:
     wire_type: tuple[str, ...]
     design_stagger_mm: FloatArray  # NaN where not given
     anchor_section: tuple[str | None, ...] | None = None  # None: the register has no such column
+    # the optional numeric columns (FORMATS.md), NaN where a mast gives none; None: the
+    # register has no such column
+    design_height_mm: FloatArray | None = None
+    line_speed_kmh: FloatArray | None = None
+    latitude: FloatArray | None = None
+    longitude: FloatArray | None = None
 
     @property
     def masts(self) -> int:

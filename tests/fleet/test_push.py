@@ -258,7 +258,9 @@ def test_pull_copies_the_central_register_and_policy(depot: Depot, build: Any) -
             run = build.run(session)
             for mast in run.track.masts:
                 mast.anchor_section = "A1"
+                mast.design_height_mm, mast.line_speed_kmh = 5300.0, 160.0
             run.track.masts[0].wire_type = "XW-95"  # installed nowhere
+            run.track.masts[1].latitude, run.track.masts[1].longitude = 48.1372, 11.5756
     finally:
         central_engine.dispose()
     result = depot.on_vehicle("pull", "--from", depot.central)
@@ -273,6 +275,9 @@ def test_pull_copies_the_central_register_and_policy(depot: Depot, build: Any) -
             assert [(m.code, m.chainage_m, m.wire_type, m.design_stagger_mm, m.anchor_section)
                     for m in masts] == [("M1", 1000.0, "XW-95", 200.0, "A1"),
                                         ("M2", 1050.0, "CTA120", None, "A1")]  # fmt: skip
+            assert [(m.design_height_mm, m.line_speed_kmh, m.latitude, m.longitude)
+                    for m in masts] == [(5300.0, 160.0, None, None),
+                                        (5300.0, 160.0, 48.1372, 11.5756)]  # fmt: skip
     finally:
         engine.dispose()
 

@@ -37,6 +37,51 @@ def test_masts_sorted_by_chainage_per_line_and_track(tmp_path: Path):
         register.track("L1", "2")  # one mast is no span
 
 
+def test_the_optional_numeric_columns_are_read_with_their_masts(tmp_path: Path):
+    path = write(
+        tmp_path,
+        "line,track,mast,chainage_m,wire_type,design_height_mm,line_speed_kmh,latitude,longitude\n"
+        "L1,1,M2,1050,CTA120,5300,160,48.1372,11.5756\n"
+        "L1,1,M1,1000,CTA120,,200,,\n",
+    )
+    track = read_register(path, WIRES).track("L1", "1")
+    assert track.mast == ("M1", "M2")
+    for name, values in [
+        ("design_height_mm", [np.nan, 5300.0]),
+        ("line_speed_kmh", [200.0, 160.0]),
+        ("latitude", [np.nan, 48.1372]),
+        ("longitude", [np.nan, 11.5756]),
+    ]:
+        np.testing.assert_array_equal(getattr(track, name), values)
+    plain = read_register(
+        write(tmp_path, "line,track,mast,chainage_m,wire_type\nL1,1,M1,0,CTA120\n")
+    )
+    only = plain.tracks[("L1", "1")]
+    assert only.design_height_mm is None and only.latitude is None  # no such column
+
+
+OPTIONAL = (
+    "line,track,mast,chainage_m,wire_type,design_height_mm,line_speed_kmh,latitude,longitude\n"
+)
+
+
+@pytest.mark.parametrize(
+    ("row", "message"),
+    [
+        ("L1,1,M1,0,CTA120,-5,,,", "row 2: design_height_mm = '-5' is outside 0 to 10000"),
+        ("L1,1,M1,0,CTA120,,0,,", "row 2: line_speed_kmh = '0' is outside 0 to 500"),
+        ("L1,1,M1,0,CTA120,,,91,10", "row 2: latitude = '91' is outside -90 to 90"),
+        ("L1,1,M1,0,CTA120,,,45,181", "row 2: longitude = '181' is outside -180 to 180"),
+        ("L1,1,M1,0,CTA120,,,45,", "row 2: give latitude and longitude together"),
+        ("L1,1,M1,0,CTA120,5.3k,,,", "row 2: design_height_mm = '5.3k' is not a finite number"),
+    ],
+)
+def test_optional_numbers_out_of_their_range_are_refused(tmp_path: Path, row: str, message: str):
+    path = write(tmp_path, OPTIONAL + row + "\n")
+    with pytest.raises(FormatError, match=message):
+        read_register(path, WIRES)
+
+
 @pytest.mark.parametrize(
     ("text", "message"),
     [

@@ -41,7 +41,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
 from catenary.config import Settings
-from catenary.domain import TrackRegister, VehicleGeometry
+from catenary.domain import OPTIONAL_MAST_NUMBERS, TrackRegister, VehicleGeometry
 from catenary.errors import UserError
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import (
@@ -390,19 +390,22 @@ def _check_register(session: Session, track: Track, item: _Outgoing) -> None:
 
 
 def _register(line: str, track: str, masts: Sequence[Mast]) -> TrackRegister:
-    """Masts as a ``TrackRegister`` (sorted by chainage)."""
+    """Masts as a ``TrackRegister`` (sorted by chainage), every column given."""
     ordered = sorted(masts, key=lambda m: m.chainage_m)
+
+    def numbers(name: str) -> np.ndarray:
+        values = [getattr(m, name) for m in ordered]
+        return np.array([math.nan if v is None else v for v in values], dtype=np.float64)
+
     return TrackRegister(
         line=line,
         track=track,
         mast=tuple(m.code for m in ordered),
-        chainage_m=np.array([m.chainage_m for m in ordered], dtype=np.float64),
+        chainage_m=numbers("chainage_m"),
         wire_type=tuple(m.wire_type for m in ordered),
-        design_stagger_mm=np.array(
-            [math.nan if m.design_stagger_mm is None else m.design_stagger_mm for m in ordered],
-            dtype=np.float64,
-        ),
+        design_stagger_mm=numbers("design_stagger_mm"),
         anchor_section=tuple(m.anchor_section for m in ordered),
+        **{name: numbers(name) for name in OPTIONAL_MAST_NUMBERS},
     )
 
 

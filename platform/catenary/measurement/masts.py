@@ -5,10 +5,12 @@ columns are ignored. A span runs from one mast to the next by chainage; its wire
 of the mast at its start. Every problem is a one-line ``FormatError`` naming the file, the
 row (its line number in the file) and the field.
 
-Extension (README, "File formats"): an optional column ``anchor_section``, a code naming the
-anchor section (tensioning length) each mast belongs to; a span is in the section of its start
-mast, and a section's masts follow one another along the track. An empty field: the mast is in
-no section.
+Optional columns: ``anchor_section``, a code naming the anchor section (tensioning length) each
+mast belongs to (a span is in the section of its start mast, and a section's masts follow one
+another along the track; an empty field: the mast is in no section); ``design_height_mm`` (the
+contact wire's height at the mast by design), ``line_speed_kmh`` (the line speed from this mast
+on), ``latitude`` and ``longitude`` (WGS 84 degrees, given together). An empty field: not given
+for that mast.
 """
 
 from __future__ import annotations
@@ -21,11 +23,20 @@ from pathlib import Path
 
 import numpy as np
 
-from catenary.domain import CODE_LENGTH, TrackRegister
+from catenary.domain import CODE_LENGTH, OPTIONAL_MAST_NUMBERS, TrackRegister
 from catenary.errors import FormatError, UserError
 from catenary.text import identifier_problem
 
 __all__ = ["REQUIRED_COLUMNS", "MastRegister", "read_register"]
+
+RANGES: dict[str, tuple[float, float]] = {
+    "design_height_mm": (0.0, 10_000.0),
+    "line_speed_kmh": (0.0, 500.0),
+    "latitude": (-90.0, 90.0),
+    "longitude": (-180.0, 180.0),
+}
+"""The values each optional numeric column may hold (the first bound excluded for height and
+speed, which are positive)."""
 
 REQUIRED_COLUMNS = ("line", "track", "mast", "chainage_m", "wire_type")
 IDENTIFIER_COLUMNS = ("line", "track", "mast", "anchor_section", "wire_type")
@@ -114,7 +125,9 @@ def read_register(path: str | Path, wire_types: Iterable[str] | None = None) -> 
                 )
             reader.fieldnames = columns
             sections = "anchor_section" in columns
+            numbers = [c for c in OPTIONAL_MAST_NUMBERS if c in columns]
             rows: dict[tuple[str, str], list[tuple[str, float, str, float, str | None]]] = {}
+            extra: dict[tuple[str, str], list[list[float]]] = {}
             for row in reader:
                 number = reader.line_num
                 values = {k: (v or "").strip() for k, v in row.items() if k is not None}
@@ -144,6 +157,11 @@ def read_register(path: str | Path, wire_types: Iterable[str] | None = None) -> 
                 rows.setdefault(key, []).append(
                     (values["mast"], chainage, values["wire_type"], stagger, section)
                 )
+                given = {c: _optional(file, number, c, values.get(c, "")) for c in numbers}
+                place = [math.isnan(given.get(c, math.nan)) for c in ("latitude", "longitude")]
+                if place[0] != place[1]:
+                    raise FormatError(file, f"row {number}: give latitude and longitude together")
+                extra.setdefault(key, []).append(list(given.values()))
     except FileNotFoundError:
         raise UserError(f"{file}: no such file") from None
     except UnicodeDecodeError as exc:
@@ -156,7 +174,9 @@ def read_register(path: str | Path, wire_types: Iterable[str] | None = None) -> 
         raise FormatError(file, "no masts")
     tracks = {}
     for (line, track), masts in rows.items():
-        masts.sort(key=lambda m: m[1])
+        order = np.argsort([m[1] for m in masts], kind="stable")
+        optional = np.array(extra[(line, track)], np.float64).reshape(len(masts), -1)[order]
+        masts = [masts[k] for k in order]
         codes = [m[0] for m in masts]
         if len(set(codes)) != len(codes):
             twice = next(c for c in codes if codes.count(c) > 1)
@@ -178,5 +198,17 @@ def read_register(path: str | Path, wire_types: Iterable[str] | None = None) -> 
             wire_type=tuple(m[2] for m in masts),
             design_stagger_mm=np.array([m[3] for m in masts]),
             anchor_section=section if sections else None,
+            **{c: optional[:, k] for k, c in enumerate(numbers)},
         )
     return MastRegister(path=file, tracks=tracks)
+
+
+def _optional(file: Path, row: int, field: str, text: str) -> float:
+    """An optional numeric column's value (NaN: empty), within its ``RANGES``."""
+    value = _number(file, row, field, text, optional=True)
+    low, high = RANGES[field]
+    positive = field in ("design_height_mm", "line_speed_kmh")
+    inside = (low < value if positive else low <= value) and value <= high
+    if not math.isnan(value) and not inside:
+        raise FormatError(file, f"row {row}: {field} = {text!r} is outside {low:g} to {high:g}")
+    return value

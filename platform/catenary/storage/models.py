@@ -157,7 +157,8 @@ class Track(Base):
 class Mast(Base):
     """A mast of the register; a span runs from one mast to the next by chainage and has the
     wire type and the anchor section (``anchor_section``, a code; None: not given) of the mast at
-    its start."""
+    its start. The design height, line speed (from this mast on) and WGS 84 position are
+    optional (None: not given)."""
 
     __tablename__ = "masts"
     __table_args__ = (
@@ -172,6 +173,10 @@ class Mast(Base):
     wire_type: Mapped[str] = mapped_column(String(CODE_LENGTH))
     design_stagger_mm: Mapped[float | None] = mapped_column(Float)
     anchor_section: Mapped[str | None] = mapped_column(String(CODE_LENGTH))
+    design_height_mm: Mapped[float | None] = mapped_column(Float)
+    line_speed_kmh: Mapped[float | None] = mapped_column(Float)
+    latitude: Mapped[float | None] = mapped_column(Float)
+    longitude: Mapped[float | None] = mapped_column(Float)
 
     track: Mapped[Track] = relationship(back_populates="masts")
 

@@ -11,7 +11,7 @@ from typing import Any
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from catenary.domain import TrackRegister, VehicleGeometry
+from catenary.domain import OPTIONAL_MAST_NUMBERS, TrackRegister, VehicleGeometry
 from catenary.errors import UserError
 from catenary.storage.inserts import get_or_add, insert_new
 from catenary.storage.models import (
@@ -48,35 +48,31 @@ def track_masts(session: Session, track: Track, register: TrackRegister) -> int:
     """Bring the track's masts in line with the register; returns how many changed.
 
     The register is the authority: a new mast is added, a mast whose chainage, wire type,
-    design stagger or anchor section differ is updated (the anchor section only when the
-    register has that column); masts not in this register are kept (a register file may hold a
-    part of the track). Span measurements keep their own mast codes and chainages, so earlier
-    runs are unchanged. New masts are added with ``insert_new``: a process adding the same
-    masts at the same time is no error (and the register read last is kept).
+    design stagger or an optional column differ is updated (an optional column only when the
+    register has it: ``anchor_section``, ``OPTIONAL_MAST_NUMBERS``); masts not in this
+    register are kept (a register file may hold a part of the track). Span measurements keep
+    their own mast codes and chainages, so earlier runs are unchanged. New masts are added
+    with ``insert_new``: a process adding the same masts at the same time is no error (and
+    the register read last is kept).
     """
 
     def masts() -> dict[str, Mast]:
         return {m.code: m for m in session.scalars(select(Mast).where(Mast.track_id == track.id))}
 
-    sections = register.anchor_section
+    given: dict[str, list[Any]] = {
+        "chainage_m": register.chainage_m.tolist(),
+        "wire_type": list(register.wire_type),
+        "design_stagger_mm": [_given(v) for v in register.design_stagger_mm.tolist()],
+    }
+    if register.anchor_section is not None:
+        given["anchor_section"] = list(register.anchor_section)
+    for name in OPTIONAL_MAST_NUMBERS:
+        values = getattr(register, name)
+        if values is not None:
+            given[name] = [_given(v) for v in values.tolist()]
     rows = [
-        {
-            "track_id": track.id,
-            "code": code,
-            "chainage_m": chainage,
-            "wire_type": wire_type,
-            "design_stagger_mm": None if stagger != stagger else stagger,  # NaN: not given
-            "anchor_section": None if sections is None else sections[k],
-        }
-        for k, (code, chainage, wire_type, stagger) in enumerate(
-            zip(
-                register.mast,
-                register.chainage_m.tolist(),
-                register.wire_type,
-                register.design_stagger_mm.tolist(),
-                strict=True,
-            )
-        )
+        {"track_id": track.id, "code": code, **{name: v[k] for name, v in given.items()}}
+        for k, code in enumerate(register.mast)
     ]
     stored = masts()
     new = [r for r in rows if r["code"] not in stored]
@@ -85,13 +81,17 @@ def track_masts(session: Session, track: Track, register: TrackRegister) -> int:
         stored = masts()
     for row in rows:
         mast = stored[row["code"]]
-        section = mast.anchor_section if sections is None else row["anchor_section"]
-        values = (row["chainage_m"], row["wire_type"], row["design_stagger_mm"], section)
-        if (mast.chainage_m, mast.wire_type, mast.design_stagger_mm, mast.anchor_section) != values:
-            mast.chainage_m, mast.wire_type, mast.design_stagger_mm, mast.anchor_section = values
-            changed += 1
+        differ = {name: row[name] for name in given if getattr(mast, name) != row[name]}
+        for name, value in differ.items():
+            setattr(mast, name, value)
+        changed += bool(differ)
     session.flush()
     return changed
+
+
+def _given(value: float) -> float | None:
+    """A register's number as stored: None where it gives none (NaN)."""
+    return None if value != value else value
 
 
 def store_processing(
