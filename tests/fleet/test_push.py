@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import re
 import shutil
 import textwrap
 import tomllib
@@ -119,8 +120,10 @@ def test_runs_processed_offline_are_pushed_whole_and_read_centrally(
     vehicle_export = tmp_path / "vehicle-samples.parquet"
     succeeded(depot.on_vehicle("export", first, "--what", "samples", "-o", vehicle_export))
 
+    crops = sorted(p.name for p in (depot.data_dir / "evidence").rglob("*.png"))
+    assert crops  # a crop per span and wire, each run
     output = succeeded(depot.on_vehicle("push", "--to", depot.central))
-    assert "pushed 2 new run(s), 2 processing(s), 2 object(s)" in output
+    assert f"pushed 2 new run(s), 2 processing(s), {2 + len(crops)} object(s)" in output
     assert f"run {first}: processing " in output and f"run {second}: processing " in output
     assert "alerts     " in output and "central" in output
     # the vehicle's data directory goes: the central side has all it needs
@@ -128,6 +131,8 @@ def test_runs_processed_offline_are_pushed_whole_and_read_centrally(
 
     assert depot.central_count(Run) == 2
     assert depot.central_count(Alert) > 0
+    central_store = open_store(load_settings(config_path=depot.central, environ={}))
+    assert sorted(k.rsplit("/", 1)[1] for k in central_store.keys("evidence")) == crops
     report = tmp_path / "run.html"
     succeeded(depot.centrally("report", "run", first[:8], "-o", report))
     assert first in report.read_text()
@@ -196,9 +201,10 @@ def test_a_run_processed_again_is_pushed_as_a_new_processing_with_its_run_file(
 ) -> None:
     run = processed(depot, small_run)
     succeeded(depot.on_vehicle("push", "--to", depot.central))
-    processed(depot, small_run, "--replace")
+    latest = processed(depot, small_run, "--replace")
+    assert latest == run  # the same run: its UUID
     output = succeeded(depot.on_vehicle("push", "--to", depot.central, "--run-files"))
-    assert "pushed 0 new run(s), 1 processing(s), 2 object(s)" in output
+    assert re.search(r"pushed 0 new run\(s\), 1 processing\(s\), \d+ object\(s\)", output)
     assert depot.central_count(Run) == 1 and depot.central_count(Processing) == 2
     engine = make_engine(depot.central_url)
     try:

@@ -36,6 +36,7 @@ from sqlalchemy.orm import Session
 from catenary.cli import cli
 from catenary.config import Settings
 from catenary.domain import WireObservations
+from catenary.measurement.evidence import evidence_key
 from catenary.measurement.process import (
     LEGACY_SCRATCH_AGE_S,
     database_fingerprint,
@@ -535,6 +536,7 @@ def test_a_process_killed_while_it_stored_leaves_an_object_the_next_one_resolves
         processing = uuid.UUID(made * 32)
         key = samples_key("L/1", "1", "run", str(processing))
         store.put_file(source, key)
+        store.put_bytes(b"PNG", evidence_key(str(processing), 0, 0))
         hidden = (
             folder / f".samples-{host}-{int(gone.stdout)}-{processing.hex}{fingerprint}.parquet"
         )
@@ -547,8 +549,16 @@ def test_a_process_killed_while_it_stored_leaves_an_object_the_next_one_resolves
     # without the database and the store: nothing to tell
     assert remove_abandoned_scratch(folder, engine=engine) == []
     removed = remove_abandoned_scratch(folder, engine=engine, store=store)
+    not_committed = str(uuid.UUID("b" * 32))
     assert sorted(removed) == sorted(
-        [str(placed["committed"][1]), *map(str, placed["not committed"])]
+        [
+            str(placed["committed"][1]),
+            *map(str, placed["not committed"]),
+            evidence_key(not_committed, 0, 0),
+        ]
+    )
+    assert store.keys("evidence") == sorted(
+        evidence_key(str(uuid.UUID(c * 32)), 0, 0) for c in "ac"
     )
     assert store.keys("samples") == sorted(
         [placed["committed"][0], placed["another database's"][0]]

@@ -10,8 +10,9 @@ What moves, and how a push stays whole:
 - **Runs and processings by identity.** A run is its UUID (its content), a processing its
   own UUID: pushing twice, or the same run from two vehicles, stores the run once, and a run
   processed again after a push is pushed as a new processing.
-- **Object first, then one transaction per processing.** Each samples file is put in the
-  central store under its portable key and read back (size and SHA-256); then one central
+- **Objects first, then one transaction per processing.** Each samples file and its image
+  evidence are put in the central store under their portable keys and read back (size and
+  SHA-256); then one central
   transaction adds what is new of the line, track and masts, the vehicle and rig calibration,
   the run, and the processing with its span measurements, and makes the run's newest
   processing its latest. A push cut at any point (the link drops, the process is killed)
@@ -43,6 +44,7 @@ from sqlalchemy.orm import Session, selectinload
 from catenary.config import Settings
 from catenary.domain import OPTIONAL_MAST_NUMBERS, TrackRegister, VehicleGeometry
 from catenary.errors import UserError
+from catenary.measurement.evidence import evidence_prefix
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import (
     Line,
@@ -133,13 +135,15 @@ def push(
         with tempfile.TemporaryDirectory(prefix="catenary-push-") as scratch:
             for item, size in zip(outgoing, sizes, strict=True):
                 placed = _send_samples(item, local_store, central_store, Path(scratch))
+                evidence = _send_evidence(item.processing.uuid, local_store, central_store)
                 source = (
                     _send_run_file(item.run, central_store)
                     if run_files and not _has_run_file(central_engine, item.run.uuid)
                     else None
                 )
-                result.objects += 1 + (source is not None)
-                result.bytes += placed.size_bytes + (source.size_bytes if source else 0)
+                result.objects += 1 + len(evidence) + (source is not None)
+                result.bytes += placed.size_bytes + sum(e.size_bytes for e in evidence)
+                result.bytes += source.size_bytes if source else 0
                 run_id, stored, latest = _commit(central_engine, item, placed, source)
                 if stored:
                     result.processings += 1
@@ -248,6 +252,19 @@ def _send_samples(item: _Outgoing, local: Store, central: Store, scratch: Path) 
             f"{size} bytes, {sha256})"
         )
     return placed
+
+
+def _send_evidence(processing_uuid: str, local: Store, central: Store) -> list[StoredObject]:
+    """Put the processing's image evidence in the central store (each crop not there yet,
+    or not the same, read back whole)."""
+    sent = []
+    for key in local.keys(evidence_prefix(processing_uuid)):
+        crop = local.digest(key)
+        if central.verify(key, crop.size_bytes, crop.sha256):
+            continue
+        with local.open_input(key) as source:
+            sent.append(central.put_bytes(source.read(), key))
+    return sent
 
 
 def _send_run_file(run: Run, central: Store) -> StoredObject:

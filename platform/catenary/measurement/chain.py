@@ -61,7 +61,9 @@ class TrackSamples:
     ``wear_width_mm`` is across the wire (stagger-angle corrected); NaN where the cameras
     did not agree on the face, the angle could not be fitted or the screen left it out, 0.0
     where no face was seen (and its neighbours saw none either). ``selection_uncertain``: the
-    processor could not decide that the row is the contact wire.
+    processor could not decide that the row is the contact wire. ``x_roof_mm``, ``z_roof_mm``
+    are the processor's point in the roof frame, before compensation (where the cameras saw
+    it: image evidence is cut there).
     """
 
     scan: IntArray
@@ -73,6 +75,8 @@ class TrackSamples:
     cameras: IntArray
     vehicle_fault: BoolArray
     selection_uncertain: BoolArray
+    x_roof_mm: FloatArray
+    z_roof_mm: FloatArray
 
     @property
     def rows(self) -> int:
@@ -104,6 +108,8 @@ _DTYPES = {
     "cameras": np.int64,
     "vehicle_fault": np.bool_,
     "selection_uncertain": np.bool_,
+    "x_roof_mm": np.float64,
+    "z_roof_mm": np.float64,
 }
 
 _Stream = tuple[int, bool]
@@ -204,6 +210,8 @@ class MeasurementChain:
             cameras=observations.cameras.astype(np.int64),
             vehicle_fault=self._fault[index],
             selection_uncertain=observations.selection_uncertain,
+            x_roof_mm=np.asarray(observations.x_roof_mm, dtype=np.float64),
+            z_roof_mm=np.asarray(observations.z_roof_mm, dtype=np.float64),
         )
         for uncertain in (False, True):
             flagged = rows.take(rows.selection_uncertain == uncertain)

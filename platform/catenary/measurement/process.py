@@ -73,6 +73,7 @@ import pyarrow as pa
 from sqlalchemy import Engine, select
 from sqlalchemy.exc import IntegrityError
 
+from catenary.arrays import FloatArray
 from catenary.config import Settings, did_you_mean
 from catenary.domain import (
     CODE_LENGTH,
@@ -86,13 +87,21 @@ from catenary.domain import (
 from catenary.errors import UserError
 from catenary.measurement.chain import MeasurementChain, TrackSamples
 from catenary.measurement.chainage import ChainageAlignment, TurningPointFinder, align_to_register
+from catenary.measurement.evidence import (
+    EvidencePoint,
+    SpanMinima,
+    cut_evidence,
+    evidence_key,
+    evidence_prefix,
+    png_bytes,
+)
 from catenary.measurement.masts import read_register
 from catenary.measurement.runfile import RunFile, open_run
 from catenary.measurement.samples import SampleWriter, read_sample_batches, trusted
 from catenary.measurement.sensors import DEFAULT_FILTER_HZ, SensorSmoother
 from catenary.measurement.spans import SpanAccumulator, SpanLayout, SpanStatistics
 from catenary.measurement.vehicle import load_vehicle_geometry
-from catenary.plugins import BlockProcessor, PluginRegistry, RunChecker
+from catenary.plugins import BlockProcessor, ImageLocator, PluginRegistry, RunChecker
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Processing, SpanMeasurement, run_uuid
 from catenary.storage.runs import find_stored_run, settings_sha256, store_processing
@@ -131,6 +140,8 @@ _MEASURED_SCHEMA = pa.schema(
         ("cameras", pa.int16()),
         ("vehicle_fault", pa.bool_()),
         ("selection_uncertain", pa.bool_()),
+        ("x_roof_mm", pa.float64()),
+        ("z_roof_mm", pa.float64()),
     ]
 )
 """Pass 1's intermediate file: the measurement chain's rows, before chainage and thickness."""
@@ -188,6 +199,9 @@ class ProcessResult:
     """The samples file's key in the store."""
     samples_where: str = ""
     """The samples file's store and key, for people."""
+    evidence: int = 0
+    """Crops of image evidence stored (one per span and wire)."""
+    evidence_where: str = ""
     sensors: str = ""
     """The vehicle sensors' filter and estimated noise (``SensorSmoother.describe``)."""
 
@@ -242,6 +256,8 @@ class ProcessResult:
             )
         extra = f" ({'; '.join(notes)})" if notes else ""
         lines.append(f"samples    {self.samples} in {self.samples_where}{extra}")
+        if self.evidence:
+            lines.append(f"evidence   {self.evidence} image crops in {self.evidence_where}")
         if self.sensors:
             lines.append(f"sensors    {self.sensors}")
         if self.replaced:
@@ -485,10 +501,12 @@ def _finish(
     layout: SpanLayout,
     wire_types: dict[str, WireType],
     run_wire_type: str | None,
+    minima: SpanMinima,
 ) -> tuple[SpanAccumulator, int, int, int]:
     """Pass 2: chainage, span, wire type and residual thickness of every sample; returns
     the span statistics, the samples outside every span, the faulty ones and the uncertain
-    ones (``selection_uncertain``). Faulty and uncertain samples are not in the statistics."""
+    ones (``selection_uncertain``). Faulty and uncertain samples are not in the statistics;
+    ``minima`` gets each span's and wire's thinnest sample of them."""
     spans = SpanAccumulator()
     outside = faulty = uncertain = 0
     names = sorted({n for n in (*layout.wire_type, run_wire_type) if n is not None})
@@ -531,7 +549,50 @@ def _finish(
             batch["height_mm"][use],
             batch["stagger_mm"][use],
         )
+        minima.add(
+            index[use],
+            batch["wire"][use],
+            thickness[use],
+            batch["scan"][use],
+            batch["x_roof_mm"][use],
+            batch["z_roof_mm"][use],
+        )
     return spans, outside, faulty, uncertain
+
+
+def _put_evidence(
+    run_file: RunFile,
+    processor: BlockProcessor,
+    boundary: Callable[[], AbstractContextManager[None]],
+    points: list[EvidencePoint],
+    layout: SpanLayout,
+    last_position_m: float,
+    store: Store,
+    processing_uuid: str,
+) -> int:
+    """Pass 3: the image evidence at each span's and wire's thinnest sample, put in the store
+    (``catenary.measurement.evidence``); returns how many crops."""
+
+    def locate(x_mm: FloatArray, z_mm: FloatArray) -> Mapping[str, FloatArray]:
+        assert isinstance(processor, ImageLocator)
+        with boundary():
+            return processor.image_columns(x_mm, z_mm)
+
+    header = run_file.header
+    crops = cut_evidence(
+        lambda start, stop: next(run_file.blocks(stop - start, start=start, stop=stop)),
+        header.scans,
+        abs(last_position_m) / max(header.scans - 1, 1),
+        points,
+        locate if isinstance(processor, ImageLocator) else None,
+        sorted(header.camera_pixels),
+    )
+    count = 0
+    for point, image in crops:
+        span = int(layout.number[point.span])
+        store.put_bytes(png_bytes(image), evidence_key(processing_uuid, span, point.wire))
+        count += 1
+    return count
 
 
 def _span_rows(
@@ -603,12 +664,13 @@ def remove_abandoned_scratch(
     process (written before the names carried one) is removed once ``LEGACY_SCRATCH_AGE_S``
     old.
 
-    A process killed while it stored its run may have put the samples file in the store
-    (under its processing's UUID, which its hidden files' token begins with) without
-    committing the processing. With ``engine`` and ``store``, for a hidden samples file of the
-    database (the token ends with its ``database_fingerprint``) whose processing is not in the
-    database, that object is removed from the store; another database's hidden samples file
-    is left for its own next process, and so is every one without ``engine`` and ``store``.
+    A process killed while it stored its run may have put the samples file and image
+    evidence in the store (under its processing's UUID, which its hidden files' token begins
+    with) without committing the processing. With ``engine`` and ``store``, for a hidden
+    samples file of the database (the token ends with its ``database_fingerprint``) whose
+    processing is not in the database, those objects are removed from the store; another
+    database's hidden samples file is left for its own next process, and so is every one
+    without ``engine`` and ``store``.
     """
     host, now_s = socket.gethostname(), time.time() if now_s is None else now_s
     database = "" if engine is None else database_fingerprint(engine)
@@ -632,6 +694,7 @@ def remove_abandoned_scratch(
             made = str(uuid.UUID(token[:32]))
             if not _committed(engine, made):
                 stray = [k for k in store.keys(SAMPLES_DIR) if k.endswith(f"/{made}.parquet")]
+                stray += store.keys(evidence_prefix(made))
                 for key in stray:
                     store.delete(key)
                 removed.extend(stray)
@@ -772,9 +835,16 @@ def _process_open_run(
                     inputs.vehicle_filter_hz,
                 )
             alignment, layout, ends = _align(inputs, finder, last_position)
+            minima = SpanMinima()
             with SampleWriter(partial) as writer:
                 spans, outside, faulty, uncertain = _finish(
-                    measured, writer, alignment, layout, inputs.wire_types, request.wire_type
+                    measured,
+                    writer,
+                    alignment,
+                    layout,
+                    inputs.wire_types,
+                    request.wire_type,
+                    minima,
                 )
                 samples = writer.rows
             measured.unlink()
@@ -784,6 +854,16 @@ def _process_open_run(
                     "no wire was measured in it: nothing stored"
                 )
             span_rows = _span_rows(spans.results(), layout, request.wire_type)
+            crops = _put_evidence(
+                run_file,
+                processor,
+                lambda: registry.boundary("processor", request.processor),
+                minima.points(),
+                layout,
+                last_position,
+                store,
+                str(made),
+            )
             header = inputs.header
             try:
                 with _interruptions_held():
@@ -857,9 +937,12 @@ def _process_open_run(
         except BaseException as exc:
             for path in (measured, partial):
                 path.unlink(missing_ok=True)
-            if placed is not None:
-                with suppress(StoreError):  # unreachable: the next process removes it
+            with suppress(StoreError):  # unreachable: the next process removes them
+                if placed is not None:
                     store.delete(placed)
+                if kept is None:
+                    for key in store.keys(evidence_prefix(str(made))):
+                        store.delete(key)
             if isinstance(exc, _StoredMeanwhile):
                 return ProcessResult(
                     run_id=exc.run_id,
@@ -894,5 +977,7 @@ def _process_open_run(
         minimum=minimum,
         samples_key=kept,
         samples_where=store.describe(kept),
+        evidence=crops,
+        evidence_where=store.describe(evidence_prefix(processing_uuid)),
         sensors=smoother.describe(),
     )

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import click
 
+from catenary.arrays import FloatArray
 from catenary.config import Settings
 from catenary.domain import RunHeader, ScanBlock, VehicleSamples, WireObservations
 from catenary.limits import LimitPolicy
@@ -92,6 +93,18 @@ class RunChecker(Protocol):
     line for a run that does not fit (naming the camera and the values) and may warn."""
 
     def check_run(self, header: RunHeader) -> None: ...
+
+
+@runtime_checkable
+class ImageLocator(Protocol):
+    """A ``BlockProcessor`` that tells where roof-frame points lie in each camera's line
+    (optional): ``image_columns(x_roof_mm, z_roof_mm)``, arrays ``(k,)`` [mm], returns each
+    camera's sensor pixel of them, ``(k,)`` (NaN where a camera cannot see one). Image
+    evidence is cut around them; without it, around nothing: the whole line, narrowed."""
+
+    def image_columns(
+        self, x_roof_mm: FloatArray, z_roof_mm: FloatArray
+    ) -> Mapping[str, FloatArray]: ...
 
 
 class _KeyAccess:

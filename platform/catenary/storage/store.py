@@ -13,6 +13,7 @@ from __future__ import annotations
 import hashlib
 import hmac
 import http.client
+import io
 import os
 import ssl
 import uuid
@@ -157,20 +158,27 @@ class Store:
         except OSError as exc:
             raise UserError(f"{local_path}: cannot read: {exc.strerror}") from None
         with source:
-            if self._folder is not None:
-                written = self._write_local(source, self._folder, key)
-            else:
-                try:
-                    written = self._upload(source, key)
-                except BaseException:
-                    # closing the stream completed the upload with what it had been given
-                    self._discard(key)
-                    raise
+            return self._put(source, key, str(local_path))
+
+    def put_bytes(self, data: bytes, key: str) -> StoredObject:
+        """``put_file`` of a small object held in memory."""
+        check_key(key)
+        return self._put(io.BytesIO(data), key, "what was written")
+
+    def _put(self, source: BinaryIO, key: str, what: str) -> StoredObject:
+        """Write ``source`` to ``key`` (atomic), read it back and check it against ``what``."""
+        if self._folder is not None:
+            written = self._write_local(source, self._folder, key)
+        else:
+            try:
+                written = self._upload(source, key)
+            except BaseException:
+                # closing the stream completed the upload with what it had been given
+                self._discard(key)
+                raise
         if not self.verify(key, written.size_bytes, written.sha256):
             self._discard(key)
-            raise StoreError(
-                f"{self.describe(key)}: the object read back differs from {local_path}"
-            )
+            raise StoreError(f"{self.describe(key)}: the object read back differs from {what}")
         return written
 
     def _upload(self, source: BinaryIO, key: str) -> StoredObject:

@@ -279,6 +279,15 @@ class LineScanProcessor:
             f"beyond the {pixels} pixels rig {self.rig.vehicle.name!r} calibrated"
         )
 
+    def image_columns(self, x_roof_mm: FloatArray, z_roof_mm: FloatArray) -> dict[str, FloatArray]:
+        """Each camera's sensor pixel of roof-frame points (``ImageLocator``), ``(k,)``;
+        NaN where the camera cannot see one."""
+        columns = {}
+        for name, camera in zip(self.names, self.cameras, strict=True):
+            u = np.asarray(camera.project(x_roof_mm, z_roof_mm), dtype=np.float64)
+            columns[name] = np.where(camera.in_view(x_roof_mm, z_roof_mm), u, np.nan)
+        return columns
+
     def process(self, block: ScanBlock) -> WireObservations:
         """Process one block of scans; return the observations now decided."""
         missing = [name for name in self.names if name not in block.cameras]
