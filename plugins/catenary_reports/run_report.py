@@ -16,6 +16,7 @@ vehicle sensor fault are left out of the plots as they are of the span figures.
 
 from __future__ import annotations
 
+import base64
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -26,6 +27,7 @@ import numpy as np
 import pyarrow as pa
 
 from catenary.limits import LEVELS, LimitPolicy, Threshold, thresholds
+from catenary.measurement.evidence import evidence_key
 from catenary.measurement.samples import (
     TRUST_COLUMNS,
     StoredSamples,
@@ -39,7 +41,7 @@ from catenary.plugins import PluginRegistry, ReportRequest
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Run, SpanMeasurement
 from catenary.storage.runs import find_run, latest_processing
-from catenary.storage.store import open_store
+from catenary.storage.store import Store, open_store
 from catenary_reports import html
 from catenary_reports.html import Cell, number
 from catenary_reports.plots import (
@@ -455,7 +457,9 @@ def write(raw: ReportRequest, output: Path) -> Path:
         if suffix != ".html":
             export_table(iter([_table(spans, limits)]), _TABLE_SCHEMA, output)
             return output
-        extent = _extent(run_samples(open_store(settings), run))
+        store = open_store(settings)
+        extent = _extent(run_samples(store, run))
+        evidence = _evidence_section(store, latest_processing(run).uuid, spans, limits)
         facts = _facts(run, spans, extent)
         title = f"Run {run.id}: line {run.line.code}, track {run.track.code if run.track else '-'}"
         subtitle = (
@@ -472,6 +476,45 @@ def write(raw: ReportRequest, output: Path) -> Path:
             section_id="plots",
         ),
         _exceedance_section(spans, limits),
+        evidence,
         _span_section(spans, limits),
     ]
     return html.write_text(output, html.page(title, subtitle, sections))
+
+
+def _evidence_section(
+    store: Store, processing_uuid: str, spans: Sequence[SpanMeasurement], limits: _Limits
+) -> str:
+    """The line-scan crops at the minima of the spans beyond a limit and of the ``THINNEST``
+    thinnest others (``catenary.measurement.evidence``), thinnest first."""
+    beyond = [s for s in spans if exceeded(s, limits.by_type.get(s.wire_type, [])) is not None]
+    chosen_ids = {id(s) for s in beyond}
+    others = sorted(
+        (s for s in spans if id(s) not in chosen_ids), key=lambda s: s.min_residual_thickness_mm
+    )
+    chosen = sorted([*beyond, *others[:THINNEST]], key=lambda s: s.min_residual_thickness_mm)
+    figures, missing = [], 0
+    for s in chosen:
+        key = evidence_key(processing_uuid, s.span, s.wire)
+        if not store.exists(key):
+            missing += 1
+            continue
+        with store.open_input(key) as handle:
+            data = base64.b64encode(handle.read()).decode("ascii")
+        figures.append(
+            '<figure class="evidence"><img alt="line-scan crop" style="width: 100%; '
+            f'height: 10em; image-rendering: pixelated" src="data:image/png;base64,{data}">'
+            f"<figcaption>{html.escape(_masts(s))}, wire {s.wire}: "
+            f"{s.min_residual_thickness_mm:.2f} mm at chainage {s.min_at_chainage_m:.1f} m"
+            "</figcaption></figure>"
+        )
+    notes = [
+        "Every camera's lines a metre around each span's thinnest point (scans downwards, "
+        "cameras side by side, each one's levels stretched): the spans beyond a limit and the "
+        f"{THINNEST} thinnest others."
+    ]
+    if missing:
+        notes.append(f"{missing} of them have no crop (processed before crops were kept).")
+    return html.section(
+        "Image evidence", html.note(" ".join(notes)), *figures, section_id="evidence"
+    )

@@ -136,6 +136,20 @@ def test_runs_processed_offline_are_pushed_whole_and_read_centrally(
     report = tmp_path / "run.html"
     succeeded(depot.centrally("report", "run", first[:8], "-o", report))
     assert first in report.read_text()
+    assert 'id="evidence"' in report.read_text() and "data:image/png;base64," in report.read_text()
+    # an alert raised centrally shows the wire where it is
+    engine = make_engine(depot.central_url)
+    try:
+        with session_scope(engine, read_only=True) as session:
+            alert_id = session.scalars(select(Alert.id).order_by(Alert.id)).first()
+    finally:
+        engine.dispose()
+    crop = tmp_path / "crop.png"
+    said = succeeded(depot.centrally("alerts", "evidence", alert_id, "-o", crop))
+    assert said.startswith(f"alert {alert_id}: crop of ")
+    assert crop.read_bytes().startswith(b"\x89PNG")
+    wrong = depot.centrally("alerts", "evidence", 999999, "-o", crop)
+    assert wrong.exit_code != 0 and "no alert 999999 in the database" in wrong.output
     # (the two small runs are of different scenes: a run against itself)
     comparison = succeeded(depot.centrally("compare", first, first))
     assert comparison.startswith("run 1 against run 1\npoints compared")

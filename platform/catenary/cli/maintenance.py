@@ -204,6 +204,53 @@ def _ids(run_ids: list[int], shown: int = 10) -> str:
     return f"{noun} {', '.join(str(i) for i in run_ids[:shown])}{more}"
 
 
+@alerts.command("evidence")
+@click.argument("alert_id", metavar="ID", type=int)
+@click.option(
+    "-o",
+    "--output",
+    required=True,
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="The PNG file to write.",
+)
+@database_option
+@click.pass_context
+def evidence_command(ctx: click.Context, alert_id: int, output: Path) -> None:
+    """Write the line-scan crop at alert ID's point (every camera, a metre around it)."""
+    from catenary.measurement.evidence import evidence_key
+    from catenary.storage.database import session_scope
+    from catenary.storage.models import Alert
+    from catenary.storage.store import open_store
+
+    if output.suffix.lower() != ".png":
+        raise UserError(f"{output}: the crop is a PNG: give a .png file")
+    app = app_of(ctx)
+    with app.database() as engine, session_scope(engine, read_only=True) as session:
+        alert = session.get(Alert, alert_id)
+        if alert is None:
+            raise UserError(f"no alert {alert_id} in the database")
+        measured = alert.span_measurement
+        if measured is None:
+            raise UserError(f"alert {alert_id} is on no span measurement (its run was deleted)")
+        key = evidence_key(measured.processing.uuid, measured.span, measured.wire)
+    store = open_store(app.settings)
+    if not store.exists(key):
+        raise UserError(
+            f"alert {alert_id}: no crop at {store.describe(key)} (its run was processed before "
+            "crops were kept: process it again with --replace)"
+        )
+    with store.open_input(key) as source:
+        data = source.read()
+    partial = output.with_name(f".{output.name}.partial")
+    try:
+        partial.write_bytes(data)
+        partial.replace(output)
+    except OSError as exc:
+        partial.unlink(missing_ok=True)
+        raise UserError(f"{output}: cannot write ({exc.strerror})") from None
+    click.echo(f"alert {alert_id}: crop of {store.describe(key)} written to {output}")
+
+
 @alerts.command("ack")
 @click.argument("alert_id", metavar="ID", type=int)
 @click.option(
