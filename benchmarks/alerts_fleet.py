@@ -68,6 +68,7 @@ _SPAN_COLUMNS = (
     ("start_chainage_m", "f8"),
     ("end_chainage_m", "f8"),
     ("wire", "i4"),
+    ("wire_position", "i4"),
     ("wire_type", "S6"),
     ("min_residual_thickness_mm", "f8"),
     ("min_at_chainage_m", "f8"),
@@ -248,6 +249,7 @@ def _track_rows(
     rows["end_chainage_m"] = np.tile(chainage[span + 1], runs)
     # wires numbered in order of appearance: from the start of the run's direction
     rows["wire"] = np.where(decreasing, sections - 1 - section, section).ravel()
+    rows["wire_position"] = np.tile(incoming.astype(np.int32), runs)  # left to right
     rows["wire_type"] = WIRE_TYPE.encode()
     rows["min_residual_thickness_mm"] = thickness.ravel()
     rows["min_at_chainage_m"] = np.tile(0.5 * (chainage[span] + chainage[span + 1]), runs)

@@ -140,6 +140,7 @@ def span_row(register: TrackRegister, k: int) -> SpanMeasurement:
         start_chainage_m=start,
         end_chainage_m=end,
         wire=0,
+        wire_position=0,
         wire_type="CTA120",
         min_residual_thickness_mm=11.3,
         min_at_chainage_m=start + 10.0,

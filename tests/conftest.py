@@ -362,6 +362,7 @@ class Build:
             "start_chainage_m": 1000.0 + 50.0 * number,
             "end_chainage_m": 1050.0 + 50.0 * number,
             "wire": 0,
+            "wire_position": 0,
             "wire_type": "CTA120",
             "min_residual_thickness_mm": 10.5,
             "min_at_chainage_m": 1012.25 + 50.0 * number,

@@ -139,7 +139,7 @@ class Fleet:
             wires = [(swap if overlap else 0, value, 0.0)]
             if k in overlap:
                 wires = [(swap, value, -150.0), (1 - swap, overlap[k], 150.0)]
-            for wire, value, line_stagger in wires:
+            for position, (wire, value, line_stagger) in enumerate(wires):
                 low, high = sorted((sign * (line_stagger - 200.0), sign * (line_stagger + 200.0)))
                 rows.append(
                     SpanMeasurement(
@@ -149,6 +149,7 @@ class Fleet:
                         start_chainage_m=at_m[k],
                         end_chainage_m=at_m[k + 1],
                         wire=wire,
+                        wire_position=position,
                         wire_type=wire_type,
                         min_residual_thickness_mm=value,
                         min_at_chainage_m=at_m[k] + 12.5,

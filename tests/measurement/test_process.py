@@ -212,6 +212,14 @@ def test_a_run_is_stored_with_its_spans_and_samples_against_the_truth(
     assert np.nanmax(np.abs(error)) < THICKNESS_TOLERANCE_MM
     # spans: from one register mast to the next, each minimum that of its samples
     assert len(spans) >= 4
+    # wire positions: left to right looking toward increasing chainage (this run's way)
+    by_span: dict[int, list[Any]] = {}
+    for s in spans:
+        by_span.setdefault(s.span, []).append(s)
+    assert any(len(wires) == 2 for wires in by_span.values())  # the overlap
+    for wires in by_span.values():
+        ordered = sorted(wires, key=lambda s: s.stagger_min_mm + s.stagger_max_mm)
+        assert [s.wire_position for s in ordered] == list(range(len(wires)))
     for row in spans:
         assert masts[row.mast_from] == row.start_chainage_m
         assert masts[row.mast_to] == row.end_chainage_m

@@ -14,14 +14,15 @@ import pytest
 from catenary.errors import FormatError
 from catenary.measurement.samples import (
     EXPORT_COLUMNS,
+    FILE_COLUMNS,
     SAMPLES_SCHEMA,
     TRUST_COLUMNS,
     SampleWriter,
     export_schema,
     export_table,
     read_sample_batches,
-    sample_tables,
     trusted,
+    with_wire_positions,
 )
 
 ROWS = 5
@@ -83,16 +84,32 @@ def test_a_version_1_file_reads_as_all_certain(tmp_path: Path) -> None:
 def test_a_version_1_file_exports_the_flag_false(tmp_path: Path) -> None:
     path = version_1_file(tmp_path / "v1.parquet")
     schema = export_schema(path)
-    assert schema.names == list(EXPORT_COLUMNS)
+    assert schema.names == list(FILE_COLUMNS)
     assert schema.field("selection_uncertain").type == pa.bool_()
     output = tmp_path / "samples.csv"
-    assert export_table(sample_tables(path), schema, output) == ROWS
+    tables, schema = with_wire_positions(path, {(0, 0): 0})
+    assert schema.names == list(EXPORT_COLUMNS)
+    assert export_table(tables, schema, output) == ROWS
     with output.open(newline="") as f:
         rows = list(csv.DictReader(f))
     assert list(rows[0]) == list(EXPORT_COLUMNS)
     assert [r["selection_uncertain"] for r in rows] == ["false"] * ROWS
+    assert [r["wire_position"] for r in rows] == ["0"] * ROWS
     parquet = tmp_path / "samples.parquet"
-    export_table(sample_tables(path), schema, parquet)
+    export_table(*with_wire_positions(path, {}), parquet)  # no span measured: empty
     table = pq.read_table(parquet)
     assert table.column_names == list(EXPORT_COLUMNS)
     assert table.column("selection_uncertain").to_pylist() == [False] * ROWS
+    assert table.column("wire_position").to_pylist() == [None] * ROWS
+
+
+def test_each_rows_wire_position_comes_from_its_span_and_wire(tmp_path: Path) -> None:
+    path = tmp_path / "samples.parquet"
+    rows = columns()
+    rows["span"] = np.array([-1, 3, 3, 4, 4], np.int32)
+    rows["wire"] = np.array([0, 0, 1, 1, 2], np.int32)
+    with SampleWriter(path) as writer:
+        writer.write({**rows, "selection_uncertain": np.zeros(ROWS, bool)})
+    tables, _ = with_wire_positions(path, {(3, 0): 1, (3, 1): 0, (4, 1): 0})
+    (table,) = tables
+    assert table.column("wire_position").to_pylist() == [None, 1, 0, 0, None]

@@ -285,3 +285,27 @@ def _span_columns(span: SpanMeasurement) -> dict[str, Any]:
     """A span measurement's columns but its keys and owners."""
     leave = {"id", "run_id", "processing_id", "track_id"}
     return {c.key: getattr(span, c.key) for c in SpanMeasurement.__table__.c if c.key not in leave}
+
+
+def test_stored_span_rows_get_their_wire_position(migrated: Engine, build: Any) -> None:
+    """Revision 0302f8277c49 ranks a span's wires left to right looking toward increasing
+    chainage, whichever way the run went."""
+    with session_scope(migrated) as session:
+        run = build.run(session, direction="decreasing")
+        # decreasing chainage: the run's stagger +150 is the line's -150, the left wire
+        session.add_all(
+            [
+                build.span(run, 0, wire=0, stagger_min_mm=100.0, stagger_max_mm=200.0),
+                build.span(run, 0, wire=1, stagger_min_mm=-200.0, stagger_max_mm=-100.0),
+                build.span(run, 1, wire=1, stagger_min_mm=-200.0, stagger_max_mm=200.0),
+            ]
+        )
+    with migrated.begin() as connection:
+        connection.execute(sa.text("UPDATE span_measurements SET wire_position = 9"))
+    migrate.downgrade(migrated, "5f3e39e9d5e9")
+    migrate.upgrade(migrated)
+    with migrated.connect() as connection:
+        found = connection.execute(
+            sa.text("SELECT span, wire, wire_position FROM span_measurements ORDER BY span, wire")
+        ).all()
+    assert [tuple(row) for row in found] == [(0, 0, 0), (0, 1, 1), (1, 1, 0)]

@@ -1,12 +1,9 @@
 """Span-wire histories of one track: its span measurements across runs, as NumPy arrays.
 
-Wire numbers are per run (``wire``: 0, 1, ... in order of appearance along the run), so the
-same wire has other numbers in a run that starts elsewhere or runs the other way. A wire is
-therefore identified within its span by its **position**: its rank among the wires the run
-measured in that span, left to right looking towards increasing chainage (by the middle of its
-stagger range, the sign of the run's direction undone). Outside overlaps a span has one wire,
-position 0, whatever the runs; in an overlap the two wires are told apart by their lateral
-order. A **stretch** is a span by its masts (codes as the mast ids of the register), or by
+A wire is identified within its span by its **position** (``catenary.positions``): its rank
+among the wires the run measured in that span, left to right looking towards increasing
+chainage; in an overlap the two wires are told apart by their lateral order. A **stretch** is
+a span by its masts (codes as the mast ids of the register), or by
 its chainages when it was measured without a register. A **history** is a stretch and
 position across runs, from its last repair on (``catenary.maintenance.actions``).
 
@@ -29,6 +26,7 @@ from numpy.typing import NDArray
 from catenary.arrays import FloatArray, IntArray, take
 from catenary.maintenance.actions import touches
 from catenary.maintenance.forecast import WearFit, fit_histories
+from catenary.positions import wire_positions
 
 __all__ = [
     "SECTION_COVERAGE",
@@ -91,22 +89,6 @@ class Repairs:
     def none(cls) -> Repairs:
         empty = np.zeros(0)
         return cls(empty, empty, np.zeros(0, dtype=np.int64), empty)
-
-
-def wire_positions(
-    run_id: IntArray, span: IntArray, line_stagger_mm: FloatArray, wire: IntArray
-) -> IntArray:
-    """Each row's rank among the rows of its run and span by ``line_stagger_mm`` (ties by the
-    run's wire number), ``(m,)``: 0 for the leftmost."""
-    order = np.lexsort((wire, line_stagger_mm, span, run_id))
-    run_sorted, span_sorted = run_id[order], span[order]
-    new = np.ones(order.shape[0], dtype=bool)
-    new[1:] = (run_sorted[1:] != run_sorted[:-1]) | (span_sorted[1:] != span_sorted[:-1])
-    index = np.arange(order.shape[0])
-    first = np.maximum.accumulate(np.where(new, index, 0))
-    position = np.empty(order.shape[0], dtype=np.int64)
-    position[order] = index - first
-    return position
 
 
 def _groups(*keys: NDArray[np.generic]) -> tuple[IntArray, IntArray]:

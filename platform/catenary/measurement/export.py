@@ -8,7 +8,7 @@ from sqlalchemy import select
 
 from catenary.config import Settings
 from catenary.errors import UserError
-from catenary.measurement.samples import export_schema, export_table, run_samples, sample_tables
+from catenary.measurement.samples import export_table, run_samples, with_wire_positions
 from catenary.measurement.spans import SPAN_SCHEMA, span_table
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import SpanMeasurement
@@ -40,5 +40,14 @@ def export_run(settings: Settings, reference: str, what: str, output: Path) -> t
             written = export_table(iter([span_table(rows)]), SPAN_SCHEMA, output)
         else:
             samples = run_samples(open_store(settings), run)
-            written = export_table(sample_tables(samples), export_schema(samples), output)
+            positions = {
+                (s.span, s.wire): s.wire_position
+                for s in session.scalars(
+                    select(SpanMeasurement).where(
+                        SpanMeasurement.processing_id == run.processing_id
+                    )
+                )
+            }
+            tables, schema = with_wire_positions(samples, positions)
+            written = export_table(tables, schema, output)
         return written, run.id

@@ -102,6 +102,7 @@ from catenary.measurement.sensors import DEFAULT_FILTER_HZ, SensorSmoother
 from catenary.measurement.spans import SpanAccumulator, SpanLayout, SpanStatistics
 from catenary.measurement.vehicle import load_vehicle_geometry
 from catenary.plugins import BlockProcessor, ImageLocator, PluginRegistry, RunChecker
+from catenary.positions import wire_positions
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Processing, SpanMeasurement, run_uuid
 from catenary.storage.runs import find_stored_run, settings_sha256, store_processing
@@ -599,11 +600,20 @@ def _span_rows(
     results: list[SpanStatistics],
     layout: SpanLayout,
     run_wire_type: str | None,
+    increasing: bool,
 ) -> list[SpanMeasurement]:
+    """The span measurements of the spans with a thickness, each wire with its position
+    (``catenary.positions``: the run's direction is ``increasing`` chainage or not)."""
+    kept = [s for s in results if s.thickness_samples > 0]
+    middle = np.array([s.stagger_min_mm + s.stagger_max_mm for s in kept], dtype=np.float64)
+    positions = wire_positions(
+        np.zeros(len(kept), dtype=np.int64),
+        np.array([s.span for s in kept], dtype=np.int64),
+        middle if increasing else -middle,
+        np.array([s.wire for s in kept], dtype=np.int64),
+    )
     rows = []
-    for s in results:
-        if s.thickness_samples == 0:
-            continue
+    for s, position in zip(kept, positions.tolist(), strict=True):
         wire_type = run_wire_type or layout.wire_type[s.span]
         assert wire_type is not None
         rows.append(
@@ -614,6 +624,7 @@ def _span_rows(
                 start_chainage_m=float(layout.boundaries_m[s.span]),
                 end_chainage_m=float(layout.boundaries_m[s.span + 1]),
                 wire=s.wire,
+                wire_position=position,
                 wire_type=wire_type,
                 min_residual_thickness_mm=s.min_residual_thickness_mm,
                 min_at_chainage_m=s.min_at_chainage_m,
@@ -853,7 +864,12 @@ def _process_open_run(
                     f"run {request.run_path} covers {_covered(float(abs(ends[1] - ends[0])))}; "
                     "no wire was measured in it: nothing stored"
                 )
-            span_rows = _span_rows(spans.results(), layout, request.wire_type)
+            span_rows = _span_rows(
+                spans.results(),
+                layout,
+                request.wire_type,
+                inputs.header.direction == "increasing",
+            )
             crops = _put_evidence(
                 run_file,
                 processor,

@@ -39,6 +39,7 @@ from catenary.storage.store import Store, check_key
 __all__ = [
     "ADDED_COLUMNS",
     "EXPORT_COLUMNS",
+    "FILE_COLUMNS",
     "SAMPLES_SCHEMA",
     "TRUST_COLUMNS",
     "SampleWriter",
@@ -48,6 +49,7 @@ __all__ = [
     "run_profile",
     "run_samples",
     "trusted",
+    "with_wire_positions",
 ]
 
 FORMAT = "catenary-samples"
@@ -62,10 +64,15 @@ EXPORT_COLUMNS = (
     "stagger_mm",
     "wear_width_mm",
     "residual_thickness_mm",
+    "wire_position",
     "selection_uncertain",
     "cameras",
 )
-"""The ``samples`` export's columns (FORMATS.md), in order."""
+"""The ``samples`` export's columns (FORMATS.md), in order. ``wire_position`` is not in the
+samples file: it comes from the span measurements (``with_wire_positions``)."""
+
+FILE_COLUMNS = tuple(c for c in EXPORT_COLUMNS if c != "wire_position")
+"""The export's columns that the samples file holds."""
 
 SAMPLES_SCHEMA = pa.schema(
     [
@@ -261,7 +268,7 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
 
 
 def sample_tables(
-    path: SamplesSource, columns: tuple[str, ...] = EXPORT_COLUMNS
+    path: SamplesSource, columns: tuple[str, ...] = FILE_COLUMNS
 ) -> Iterator[pa.Table]:
     """The samples file's row groups as tables of ``columns`` (those of ``ADDED_COLUMNS`` an
     older file lacks filled in), in that order."""
@@ -279,12 +286,49 @@ def sample_tables(
         )
 
 
-def export_schema(path: SamplesSource, columns: tuple[str, ...] = EXPORT_COLUMNS) -> pa.Schema:
+def export_schema(path: SamplesSource, columns: tuple[str, ...] = FILE_COLUMNS) -> pa.Schema:
     """The schema of ``columns`` of a samples file (an older file's as the current one's)."""
     schema = _open(path).schema_arrow
     return pa.schema(
         [schema.field(c) if c in schema.names else SAMPLES_SCHEMA.field(c) for c in columns]
     )
+
+
+def with_wire_positions(
+    source: SamplesSource, positions: Mapping[tuple[int, int], int]
+) -> tuple[Iterator[pa.Table], pa.Schema]:
+    """The ``samples`` export of a samples file: its ``FILE_COLUMNS`` and each row's
+    ``wire_position`` from ``positions`` (the span measurements' ``(span, wire)`` ->
+    ``wire_position``; empty outside every span measured), as tables and their schema."""
+    file_schema = export_schema(source)
+    schema = pa.schema(
+        [pa.field("wire_position", pa.int32()) if c == "wire_position" else file_schema.field(c)
+         for c in EXPORT_COLUMNS]
+    )  # fmt: skip
+    # (span + 1, wire) -> position, -1 for none: a row outside every span has span -1
+    lookup = np.full(
+        (
+            max((k[0] for k in positions), default=-1) + 2,
+            max((k[1] for k in positions), default=0) + 1,
+        ),
+        -1,
+        dtype=np.int32,
+    )
+    for (span, wire), position in positions.items():
+        lookup[span + 1, wire] = position
+
+    def tables() -> Iterator[pa.Table]:
+        for table in sample_tables(source, (*FILE_COLUMNS, "span")):
+            span = table.column("span").to_numpy(zero_copy_only=False).astype(np.int64) + 1
+            wire = table.column("wire").to_numpy(zero_copy_only=False).astype(np.int64)
+            inside = (span >= 0) & (span < lookup.shape[0]) & (wire >= 0) & (wire < lookup.shape[1])
+            found = np.full(span.shape, -1, dtype=np.int32)
+            found[inside] = lookup[span[inside], wire[inside]]
+            columns = {c: table.column(c) for c in FILE_COLUMNS}
+            columns["wire_position"] = pa.array(found, pa.int32(), mask=found < 0)
+            yield pa.table(columns).select(list(EXPORT_COLUMNS)).cast(schema)
+
+    return tables(), schema
 
 
 def run_samples(store: Store, run: Run) -> StoredSamples:

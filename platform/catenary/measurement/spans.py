@@ -37,6 +37,7 @@ SPAN_COLUMNS = (
     "start_chainage_m",
     "end_chainage_m",
     "wire",
+    "wire_position",
     "wire_type",
     "min_residual_thickness_mm",
     "min_at_chainage_m",
@@ -47,7 +48,8 @@ SPAN_COLUMNS = (
     "stagger_max_mm",
     "samples",
 )
-"""The ``spans`` export's columns (FORMATS.md), in order."""
+"""The ``spans`` export's columns (FORMATS.md), in order; ``wire_position`` (the identity
+users see, ``catenary.positions``) is the project's own, after ``wire``."""
 
 SPAN_SCHEMA = pa.schema(
     [
@@ -56,7 +58,7 @@ SPAN_SCHEMA = pa.schema(
             pa.string()
             if c in ("mast_from", "mast_to", "wire_type")
             else pa.int64()
-            if c in ("span", "wire", "samples")
+            if c in ("span", "wire", "wire_position", "samples")
             else pa.float64(),
         )
         for c in SPAN_COLUMNS

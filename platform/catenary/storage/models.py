@@ -378,6 +378,7 @@ class SpanMeasurement(Base):
         ),
         Index(None, "track_id", "start_chainage_m"),
         CheckConstraint("wire >= 0", name="wire_not_negative"),
+        CheckConstraint("wire_position >= 0", name="wire_position_not_negative"),
         CheckConstraint("samples >= 0", name="samples_not_negative"),
         CheckConstraint("end_chainage_m >= start_chainage_m", name="chainage_order"),
     )
@@ -393,6 +394,9 @@ class SpanMeasurement(Base):
     start_chainage_m: Mapped[float] = mapped_column(Float)
     end_chainage_m: Mapped[float] = mapped_column(Float)
     wire: Mapped[int] = mapped_column(Integer)
+    # the wire's rank in the span, left to right looking toward increasing chainage: the
+    # identity users see (catenary.positions)
+    wire_position: Mapped[int] = mapped_column(Integer)
     wire_type: Mapped[str] = mapped_column(String(CODE_LENGTH))
     min_residual_thickness_mm: Mapped[float] = mapped_column(Float)
     min_at_chainage_m: Mapped[float] = mapped_column(Float)
