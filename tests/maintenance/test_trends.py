@@ -246,6 +246,17 @@ def test_trend_report_lists_the_worst_rates_and_what_is_due(
     html = tmp_path / "trends.html"
     assert invoke(worn, "report", "trends", "-o", html, config=config).exit_code == 0
     text = html.read_text()
-    assert 'id="rates"' in text and 'id="due"' in text and "china-maintenance-rules" in text
+    assert 'id="rates"' in text and "china-maintenance-rules" in text
+    due = text.split('id="due"')[1].split("</table>")[0]
+    # span 3's urgent (about 2028) and critical (about 2030) limits, each within ten years of
+    # today; span 5 reaches its urgent limit in about 2052
+    assert due.count("<tr") == 3
+    assert due.index("urgent") < due.index("critical")
+    assert "M03 to M04" in due and "M05" not in due
+    bad = invoke(worn, "report", "trends", "--line", "L9", "-o", html, config=config)
+    assert one_line_error(bad) == "Error: no line 'L9' in the database (known: L1)"
+    assert one_line_error(
+        invoke(worn, "report", "trends", "--set", "top=0", "-o", html, config=config)
+    ).startswith("Error: reporter 'trends': option top = '0' is outside 1 to 10000")
     listed = invoke(worn, "report", "--list")
     assert "trends  (plugin reports)" in listed.output
