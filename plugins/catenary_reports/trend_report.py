@@ -93,13 +93,15 @@ def track_of(session: Session, line: str, track: str) -> int:
 
 @dataclass(frozen=True)
 class _Entry:
-    """A history with a rate, and its earliest limit due within the horizon (rule index into
-    the track's ``limits``, -1: none)."""
+    """A listed history: its rank by wear rate in the fleet (1: the fastest), its rate and
+    interval [mm/year], and its earliest limit due within the horizon (an index into the
+    track's ``limits``, -1: none)."""
 
     line: str
     track: str
     trends: TrackTrends
     h: int
+    rank: int
     rate: float
     low: float
     high: float
@@ -119,39 +121,67 @@ class _Entry:
         return reach_text(float(getattr(self.trends.limits[self.due].reach, which)[self.h]))
 
 
-def _entries(
-    tracks: list[tuple[str, str, TrackTrends]], horizon_end: float
-) -> tuple[list[_Entry], list[tuple[_Entry, int]]]:
-    """Every history with a rate, and every (history, limit) due by ``horizon_end``."""
-    entries: list[_Entry] = []
-    due: list[tuple[_Entry, int]] = []
-    for line, code, trends in tracks:
+@dataclass(frozen=True)
+class _Listed:
+    """What the report lists: the histories among the ``top`` worst wear rates or with a limit
+    due (by rank), every (history, limit) due (earliest first), and how many have a rate."""
+
+    entries: list[_Entry]
+    due: list[tuple[_Entry, int]]
+    rated: int
+
+
+def _listed(tracks: list[tuple[str, str, TrackTrends]], horizon_end: float, top: int) -> _Listed:
+    """Rank every history with a rate (vectorised over the fleet's histories) and keep those
+    the report lists; Python works per listed history only."""
+    owner, history, rates, due_first = [], [], [], []
+    for index, (_, _, trends) in enumerate(tracks):
         hist = trends.histories
-        low, high = rate_interval(hist.fit)
         rated = (hist.latest >= 0) & (hist.fit.runs >= MIN_RUNS)
         rated &= np.isfinite(hist.fit.slope_mm_per_year)
-        central = np.array([limit.reach.central for limit in trends.limits]).reshape(
-            len(trends.limits), hist.histories
+        found = np.flatnonzero(rated)
+        central = np.array([limit.reach.central[found] for limit in trends.limits]).reshape(
+            len(trends.limits), found.shape[0]
         )
         within = np.where(central <= horizon_end, central, np.inf)
-        first = np.argmin(within, axis=0) if trends.limits else np.zeros(hist.histories, int)
-        any_due = np.isfinite(within.min(axis=0, initial=np.inf))
-        for h in np.flatnonzero(rated).tolist():
-            entry = _Entry(
-                line,
-                code,
-                trends,
-                h,
-                float(hist.fit.wear_rate_mm_per_year[h]),
-                float(low[h]),
-                float(high[h]),
-                int(first[h]) if any_due[h] else -1,
-            )
-            entries.append(entry)
-            due += [(entry, k) for k in np.flatnonzero(np.isfinite(within[:, h])).tolist()]
-    entries.sort(key=lambda e: -e.rate)
-    due.sort(key=lambda p: float(p[0].trends.limits[p[1]].reach.central[p[0].h]))
-    return entries, due
+        first = np.argmin(within, axis=0) if trends.limits else np.zeros(found.shape[0], int)
+        due = np.isfinite(within.min(axis=0, initial=np.inf))
+        owner.append(np.full(found.shape[0], index))
+        history.append(found)
+        rates.append(hist.fit.wear_rate_mm_per_year[found])
+        due_first.append(np.where(due, first, -1))
+    rate = np.concatenate([np.zeros(0), *rates])
+    order = np.argsort(-rate, kind="stable")
+    rank = np.empty(order.shape[0], dtype=np.int64)
+    rank[order] = np.arange(1, order.shape[0] + 1)
+    owners = np.concatenate([np.zeros(0, int), *owner])
+    histories = np.concatenate([np.zeros(0, int), *history])
+    first_due = np.concatenate([np.zeros(0, int), *due_first])
+    entries: list[_Entry] = []
+    due_pairs: list[tuple[_Entry, int]] = []
+    for k in order[(rank[order] <= top) | (first_due[order] >= 0)].tolist():
+        line, code, trends = tracks[int(owners[k])]
+        h = int(histories[k])
+        low, high = rate_interval(trends.histories.fit.take(np.array([h])))
+        entry = _Entry(
+            line,
+            code,
+            trends,
+            h,
+            int(rank[k]),
+            float(rate[k]) + 0.0,  # + 0.0: no "-0" for a wire that does not wear
+            float(low[0]) + 0.0,
+            float(high[0]) + 0.0,
+            int(first_due[k]),
+        )
+        entries.append(entry)
+        due_pairs += [
+            (entry, j)
+            for j, limit in enumerate(trends.limits)
+            if float(limit.reach.central[h]) <= horizon_end and np.isfinite(limit.reach.central[h])
+        ]
+    due_pairs.sort(key=lambda p: float(p[0].trends.limits[p[1]].reach.central[p[0].h]))
+    return _Listed(entries, due_pairs, int(rate.shape[0]))
 
 
 _SCHEMA = pa.schema(
@@ -189,11 +219,9 @@ def _latest_min(e: _Entry) -> float:
     return float(rows.min_thickness_mm[e.trends.histories.latest[e.h]])
 
 
-def _table(entries: list[_Entry], top: int) -> pa.Table:
+def _table(entries: list[_Entry]) -> pa.Table:
     rows = []
-    for rank, e in enumerate(entries, 1):
-        if rank > top and e.due < 0:
-            continue
+    for e in entries:
         hist = e.trends.histories
         mast_from, mast_to = e.masts
         limit = e.trends.limits[e.due] if e.due >= 0 else None
@@ -212,7 +240,7 @@ def _table(entries: list[_Entry], top: int) -> pa.Table:
                 "wear_rate_mm_per_year": e.rate,
                 "wear_rate_low_mm_per_year": e.low,
                 "wear_rate_high_mm_per_year": e.high,
-                "rank": rank,
+                "rank": e.rank,
                 "limit_level": limit.rule.rule.level if limit else None,
                 "limit_mm": float(limit.threshold_mm[e.h]) if limit else None,
                 "reach_date": e.reach("central"),
@@ -239,24 +267,22 @@ def _place(e: _Entry) -> list[Cell | str]:
 _PLACE = ["line, track", "masts", "from m", "to m", "wire position", "wire type"]
 
 
-def _html(
-    entries: list[_Entry], due: list[tuple[_Entry, int]], top: int, facts: list[tuple[str, str]]
-) -> str:
+def _html(listed: _Listed, top: int, facts: list[tuple[str, str]]) -> str:
     now = datetime.now(UTC)
-    worst = entries[:top]
+    worst = [e for e in listed.entries if e.rank <= top]
     rates = [
         [
-            Cell(str(rank), numeric=True),
+            Cell(str(e.rank), numeric=True),
             *_place(e),
             Cell(str(int(e.trends.histories.fit.runs[e.h])), numeric=True),
             number(_latest_min(e)),
             number(e.rate, 3),
             Cell(f"{e.low:.3f} to {e.high:.3f}", keep=True),
         ]
-        for rank, e in enumerate(worst, 1)
+        for e in worst
     ]
     due_rows = []
-    for e, k in due:
+    for e, k in listed.due:
         limit = e.trends.limits[k]
         reach = limit.reach
         due_rows.append(
@@ -311,7 +337,7 @@ def _html(
                     "rule",
                 ],
                 due_rows,
-                row_classes=[e.trends.limits[k].rule.rule.level for e, k in due],
+                row_classes=[e.trends.limits[k].rule.rule.level for e, k in listed.due],
                 table_id="due",
                 empty="Nothing is forecast to reach a limit within the horizon.",
             ),
@@ -338,9 +364,9 @@ def write(raw: ReportRequest, output: Path) -> Path:
             (line, code, track_trends(session, track_id, wire_types, request.policy))
             for track_id, line, code in tracks_of(session, request.line, request.track)
         ]
-    entries, due = _entries(tracks, horizon_end)
+    listed = _listed(tracks, horizon_end, top)
     if suffix != ".html":
-        export_table(iter([_table(entries, top)]), _SCHEMA, output)
+        export_table(iter([_table(listed.entries)]), _SCHEMA, output)
         return output
     if request.line is None:
         where = "every line"
@@ -348,13 +374,13 @@ def write(raw: ReportRequest, output: Path) -> Path:
         where = f"line {request.line}" + (f" track {request.track}" if request.track else "")
     policy = request.policy
     facts = [
-        ("Lines and tracks", f"{where} ({len(tracks)} tracks)"),
+        ("Lines and tracks", f"{where} ({len(tracks)} track(s))"),
         (
             "Wear-limit policy",
             f"{policy.name}: {policy.description}" if policy else "none configured: no forecast",
         ),
         ("Horizon", f"{horizon:g} days, to {(now + timedelta(days=horizon)).date().isoformat()}"),
-        ("Span-wires with a wear rate", str(len(entries))),
-        ("Due within the horizon", f"{len({(id(e.trends), e.h) for e, _ in due})} span-wires"),
+        ("Span-wires with a wear rate", str(listed.rated)),
+        ("Due within the horizon", f"{sum(e.due >= 0 for e in listed.entries)} span-wires"),
     ]
-    return html.write_text(output, _html(entries, due, top, facts))
+    return html.write_text(output, _html(listed, top, facts))
