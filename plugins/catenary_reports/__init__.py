@@ -3,7 +3,10 @@
 - ``run``: one run, HTML with plots along the chainage, limit exceedances and the span table;
 - ``maintenance``: open alerts, forecasts and the spans to visit, per line, HTML or CSV;
 - ``linear-events``: per-span results as linear events for asset management, CSV or Parquet;
-- ``repeatability``: two runs over the same section compared (the paper's figure 16).
+- ``repeatability``: two runs over the same section compared (the paper's figure 16);
+- ``trends``: the worst wear rates and the spans due within the planning horizon, HTML or CSV;
+
+and the ``history`` command (a span's measurements over runs, its wear rate and forecasts).
 
 The hook only registers; each reporter's module (and matplotlib) is imported when it writes.
 """
@@ -15,9 +18,9 @@ from collections.abc import Callable
 from pathlib import Path
 
 from catenary.plugins import hookimpl
-from catenary.plugins.types import Reporter, ReportRequest
+from catenary.plugins.types import Command, Reporter, ReportRequest
 
-__all__ = ["catenary_reporters"]
+__all__ = ["catenary_commands", "catenary_reporters"]
 
 
 def _lazy(module: str) -> Callable[[ReportRequest, Path], Path]:
@@ -29,6 +32,13 @@ def _lazy(module: str) -> Callable[[ReportRequest, Path], Path]:
         return found(request, output)
 
     return write
+
+
+@hookimpl
+def catenary_commands() -> list[Command]:
+    from catenary_reports.commands import history
+
+    return [Command("history", history)]
 
 
 @hookimpl
@@ -69,5 +79,15 @@ def catenary_reporters() -> list[Reporter]:
                 "bin_mm 0.02 (0.001 to 1), max_shift_m 1.0 (0 to 10)"
             ),
             write=_lazy("repeatability"),
+        ),
+        Reporter(
+            name="trends",
+            description=(
+                "the worst wear rates (span-wires, mm/year with their interval) and the spans "
+                "forecast to reach a limit within the horizon ([maintenance] horizon_days) "
+                "([--line L [--track T]]); .html, or .csv/.parquet (one row per span-wire of "
+                "either list); option (--set KEY=VALUE) top 20 (1 to 10000)"
+            ),
+            write=_lazy("trend_report"),
         ),
     ]

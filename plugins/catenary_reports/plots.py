@@ -17,6 +17,7 @@ import io
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from datetime import datetime
 
 import numpy as np
 from matplotlib import rc_context
@@ -36,11 +37,13 @@ __all__ = [
     "Marker",
     "Panel",
     "Series",
+    "TrendSeries",
     "envelope",
     "envelope_path",
     "histogram_figure",
     "profile_figure",
     "svg",
+    "trend_figure",
     "wire_colour",
 ]
 
@@ -321,6 +324,51 @@ def histogram_figure(
     ax.set_title(title, fontsize=10)
     ax.grid(axis="y", color="#e3e7ec", lw=0.6)
     ax.tick_params(labelsize=8.5)
+    return fig
+
+
+@dataclass(frozen=True)
+class TrendSeries:
+    """One history on a trend figure: each run's minimum residual thickness [mm] at its start
+    (``since_repair`` false: before the wire's last repair, drawn hollow and not fitted), and
+    the fitted line with its confidence band at ``fit_times`` (empty: no line)."""
+
+    label: str
+    colour: str
+    times: Sequence[datetime]
+    values_mm: FloatArray
+    since_repair: Sequence[bool]
+    fit_times: Sequence[datetime]
+    fit_mm: FloatArray
+    band_low_mm: FloatArray
+    band_high_mm: FloatArray
+
+
+def trend_figure(series: Sequence[TrendSeries], limits: Sequence[LimitLine], title: str) -> Figure:
+    """Minimum residual thickness over time: each history's runs, its fitted line and band,
+    and the limits as horizontal lines."""
+    fig = Figure(figsize=(10.0, 4.8), dpi=100, layout="constrained")
+    ax = fig.subplots()
+    for s in series:
+        kept = np.asarray(s.since_repair, dtype=bool)
+        times = np.asarray(s.times, dtype=object)
+        ax.plot(times[kept], s.values_mm[kept], "o", ms=5, color=s.colour, label=s.label)
+        if not kept.all():
+            ax.plot(times[~kept], s.values_mm[~kept], "o", ms=5, mfc="none", color=s.colour)
+        if len(s.fit_times):
+            fit_times = np.asarray(s.fit_times, dtype=object)
+            ax.plot(fit_times, s.fit_mm, color=s.colour, lw=1.2)
+            ax.fill_between(
+                fit_times, s.band_low_mm, s.band_high_mm, color=s.colour, alpha=0.15, lw=0
+            )
+    ax.set_ylabel("minimum residual thickness [mm]", fontsize=9.5)
+    ax.set_xlabel("run start (UTC)", fontsize=9.5)
+    ax.set_title(title, fontsize=10)
+    ax.grid(axis="y", color="#e3e7ec", lw=0.6)
+    ax.tick_params(labelsize=8.5)
+    _limit_lines(ax, limits)
+    if series:
+        ax.legend(fontsize=8, loc="lower left")
     return fig
 
 

@@ -5,7 +5,9 @@ chainage as stored), residual thickness, stagger and height along the chainage p
 paper's figures 14-15) in figures of at most ``segment_m`` of chainage each, span boundaries
 and mast codes marked, the policy's limits drawn and each span's minimum marked; the spans
 whose minimum residual thickness meets a local limit of the configured policy, most severe
-first (without a policy, the thinnest spans); and every span and wire. ``.csv``/``.parquet``:
+first (without a policy, the thinnest spans); the track's previous complete run beside this
+one (its date, each span's minimum then and now, the wear since in mm and mm/year, most
+worn first: ``catenary.maintenance.trends``); and every span and wire. ``.csv``/``.parquet``:
 the span table (the ``spans`` export's columns) with the most severe local limit each row
 meets.
 
@@ -25,8 +27,15 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+from sqlalchemy.orm import Session
 
 from catenary.limits import LEVELS, LimitPolicy, Threshold, thresholds
+from catenary.maintenance.trends import (
+    RunComparison,
+    TrackTrends,
+    compare_with_previous,
+    track_trends,
+)
 from catenary.measurement.evidence import evidence_key
 from catenary.measurement.samples import (
     TRUST_COLUMNS,
@@ -416,6 +425,91 @@ def _span_section(spans: Sequence[SpanMeasurement], limits: _Limits) -> str:
     )
 
 
+def _previous_section(run: Run, found: tuple[TrackTrends, RunComparison] | None) -> str:
+    """The track's previous complete run beside this one: per span and wire position the
+    minimum residual thickness then and now, and the wear since, worst first."""
+    title, section_id = "Since the previous run", "previous-run"
+    if found is None:
+        where = f"line {run.line.code} track {run.track.code}" if run.track else "no track"
+        return html.section(
+            title,
+            html.note(f"No earlier complete run of {where} to compare with."),
+            section_id=section_id,
+        )
+    trends, c = found
+    data, rows = trends.data, trends.data.rows
+    started = data.run_started[int(np.searchsorted(data.run_id, c.previous_run_id))]
+    codes = data.mast_code
+    table: list[list[Cell | str]] = []
+    for now, then, wear, rate, repaired in zip(
+        c.now.tolist(),
+        c.then.tolist(),
+        c.wear_mm.tolist(),
+        c.wear_mm_per_year.tolist(),
+        c.repaired.tolist(),
+        strict=True,
+    ):
+        mast_from, mast_to = int(rows.mast_from[now]), int(rows.mast_to[now])
+        masts = f"{codes[mast_from]} to {codes[mast_to]}" if mast_from >= 0 else ""
+        table.append(
+            [
+                Cell(masts or f"span {rows.span[now]}", keep=True),
+                number(float(rows.start_m[now]), 1),
+                number(float(rows.end_m[now]), 1),
+                Cell(str(trends.histories.row_position[now]), numeric=True),
+                number(float(rows.min_thickness_mm[then])),
+                number(float(rows.min_thickness_mm[now])),
+                number(wear),
+                number(rate, 3),
+                "repaired since" if repaired else "",
+            ]
+        )
+    return html.section(
+        title,
+        html.facts(
+            [
+                ("Previous run", f"{c.previous_run_id}, {html.stamp(started)}"),
+                ("Between the runs", f"{c.years * 365.25:.1f} days"),
+                ("Span-wires in both", str(len(table))),
+            ],
+            table_id="previous-facts",
+        ),
+        html.note(
+            "Each span and wire position measured by both runs (wire positions count from the "
+            "left looking towards increasing chainage, whatever the direction of the runs), "
+            "the most worn since first; a negative wear is a thicker wire (a repair, or the "
+            "measurement's scatter)."
+        ),
+        html.table(
+            [
+                "masts",
+                "from m",
+                "to m",
+                "wire position",
+                "min mm then",
+                "min mm now",
+                "wear mm",
+                "wear mm/year",
+                "",
+            ],
+            table,
+            table_id="previous",
+            empty="The two runs measured no span in common.",
+        ),
+        section_id=section_id,
+    )
+
+
+def _previous(
+    session: Session, registry: PluginRegistry, run: Run
+) -> tuple[TrackTrends, RunComparison] | None:
+    if run.track_id is None:
+        return None
+    trends = track_trends(session, run.track_id, registry.wire_types(), None)
+    comparison = compare_with_previous(trends, run.id)
+    return None if comparison is None else (trends, comparison)
+
+
 OPTIONS = {"segment_m": Option(1000.0, 50.0, 1_000_000.0, "m")}
 """``--set``: the chainage of one figure, at least about a span (a figure of less would
 multiply the figures, and the time, without showing more)."""
@@ -461,6 +555,7 @@ def write(raw: ReportRequest, output: Path) -> Path:
         extent = _extent(run_samples(store, run))
         evidence = _evidence_section(store, latest_processing(run).uuid, spans, limits)
         facts = _facts(run, spans, extent)
+        previous = _previous_section(run, _previous(session, request.registry, run))
         title = f"Run {run.id}: line {run.line.code}, track {run.track.code if run.track else '-'}"
         subtitle = (
             f"{run.direction} chainage, {html.stamp(run.started_at)}, vehicle {run.vehicle.name}"
@@ -477,6 +572,7 @@ def write(raw: ReportRequest, output: Path) -> Path:
         ),
         _exceedance_section(spans, limits),
         evidence,
+        previous,
         _span_section(spans, limits),
     ]
     return html.write_text(output, html.page(title, subtitle, sections))
