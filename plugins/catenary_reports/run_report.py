@@ -5,9 +5,9 @@ chainage as stored), residual thickness, stagger and height along the chainage p
 paper's figures 14-15) in figures of at most ``segment_m`` of chainage each, span boundaries
 and mast codes marked, the policy's limits drawn and each span's minimum marked; the spans
 whose minimum residual thickness meets a local limit of the configured policy, most severe
-first (without a policy, the thinnest spans); and every span and wire. ``.csv``/``.parquet``:
-the span table (the ``spans`` export's columns) with the most severe local limit each row
-meets.
+first (without a policy, the thinnest spans); and every span and wire.
+``.csv``/``.xlsx``/``.parquet`` (``-``: CSV to standard output): the span table (the
+``spans`` export's columns) with the most severe local limit each row meets.
 
 The samples file is read twice, row group by row group (its chainage range, then the
 envelopes): memory is bounded by the plots' columns, not by the run's length. Samples with a
@@ -443,7 +443,7 @@ def _table(spans: Sequence[SpanMeasurement], limits: _Limits) -> pa.Table:
 def write(raw: ReportRequest, output: Path) -> Path:
     """Write the run report of ``raw['runs'][0]`` to ``output`` (module docstring)."""
     request = parse_request("run", raw, runs=(1, 1), options=OPTIONS)
-    suffix = check_output(output, (".html", ".csv", ".parquet"))
+    suffix = check_output(output, (".html", ".csv", ".xlsx", ".parquet"))
     settings = request.settings
     with (
         open_database(settings) as engine,

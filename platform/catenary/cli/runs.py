@@ -187,17 +187,22 @@ def _interrupted_once_stored(
     "--output",
     required=True,
     type=click.Path(path_type=Path, dir_okay=False),
-    help="FILE.csv or FILE.parquet.",
+    help="FILE.csv, FILE.xlsx, FILE.parquet, FILE.geojson (spans, with mast coordinates) or "
+    "'-' (CSV to standard output).",
 )
 @database_option
 @click.pass_context
 def export(ctx: click.Context, run_reference: str, what: str, output: Path) -> None:
-    """Export a run's samples or spans as CSV or Parquet (RUN: a run id, UUID or its prefix,
-    or 'latest')."""
+    """Export a run's samples or spans as CSV, .xlsx or Parquet, or its spans as GeoJSON
+    (RUN: a run id, UUID or its prefix, or 'latest')."""
     from catenary.measurement.export import export_run
 
-    written, run_id = export_run(app_of(ctx).settings, run_reference, what, output)
-    click.echo(f"{written} {what} of run {run_id} written to {output}")
+    done = export_run(app_of(ctx).settings, run_reference, what, output)
+    to_stdout = str(output) == "-"  # the CSV is standard output: the message goes aside
+    where = "standard output" if to_stdout else str(output)
+    click.echo(f"{done.rows} {what} of run {done.run_id} written to {where}", err=to_stdout)
+    if done.left_out:
+        click.echo(f"{done.left_out} {what} left out: their masts have no coordinates", err=True)
 
 
 @click.command("compare")

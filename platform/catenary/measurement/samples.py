@@ -17,6 +17,7 @@ scan and wire) and read back in row groups, so neither side holds a whole run in
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
@@ -31,7 +32,7 @@ import pyarrow.parquet as pq
 from catenary.arrays import BoolArray
 from catenary.errors import FormatError, UserError
 from catenary.measurement.compare import RunProfile
-from catenary.measurement.spreadsheet import for_people
+from catenary.measurement.spreadsheet import SHEET_ROWS, XlsxTableWriter, for_people
 from catenary.storage.models import Run
 from catenary.storage.runs import latest_processing
 from catenary.storage.store import Store, check_key
@@ -40,6 +41,8 @@ __all__ = [
     "ADDED_COLUMNS",
     "EXPORT_COLUMNS",
     "SAMPLES_SCHEMA",
+    "STDOUT",
+    "TABLE_SUFFIXES",
     "TRUST_COLUMNS",
     "SampleWriter",
     "StoredSamples",
@@ -49,6 +52,11 @@ __all__ = [
     "run_samples",
     "trusted",
 ]
+
+TABLE_SUFFIXES = (".csv", ".xlsx", ".parquet")
+"""The suffixes of the files a table is exported to (``export_table``)."""
+STDOUT = "-"
+"""The output that is standard output (CSV)."""
 
 FORMAT = "catenary-samples"
 FORMAT_VERSION = 2
@@ -227,17 +235,21 @@ def trusted(batch: Mapping[str, np.ndarray[Any, Any]]) -> BoolArray:
 
 
 def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -> int:
-    """Write tables to ``output`` as CSV or Parquet (by its suffix); returns the rows written.
+    """Write tables to ``output`` as CSV, ``.xlsx`` or Parquet (by its suffix; ``-``: CSV to
+    standard output); returns the rows written.
 
     Written to a temporary file beside ``output`` and renamed at the end: an interrupted
     export leaves no partial file; a write that fails (a full disk) is a ``UserError`` naming
-    ``output``. CSV is for people: numbers rounded to what they mean, text
+    ``output``. CSV and ``.xlsx`` are for people: numbers rounded to what they mean, text
     cells that a spreadsheet would evaluate neutralised, control characters escaped
-    (``for_people``).
+    (``for_people``). More rows than an ``.xlsx`` sheet holds is a ``UserError`` naming
+    ``output`` and the count, and writes nothing.
     """
+    if str(output) == STDOUT:
+        return _csv_to_stdout(batches, schema)
     suffix = output.suffix.lower()
-    if suffix not in (".csv", ".parquet"):
-        raise UserError(f"{output}: the output's suffix must be .csv or .parquet")
+    if suffix not in TABLE_SUFFIXES:
+        raise UserError(f"{output}: the output's suffix must be {' or '.join(TABLE_SUFFIXES)}")
     partial = output.with_name(f".{output.name}.partial")
     rows = 0
     try:
@@ -245,6 +257,17 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
             with pq.ParquetWriter(partial, schema) as writer:
                 for table in batches:
                     writer.write_table(table)
+                    rows += table.num_rows
+        elif suffix == ".xlsx":
+            with XlsxTableWriter(partial, schema) as sheet:
+                for table in batches:
+                    if 1 + rows + table.num_rows > SHEET_ROWS:
+                        total = rows + table.num_rows + sum(t.num_rows for t in batches)
+                        raise UserError(
+                            f"{output}: {total} rows is more than a sheet holds "
+                            f"({SHEET_ROWS - 1} below the header); write .csv or .parquet"
+                        )
+                    sheet.write_table(table)
                     rows += table.num_rows
         else:
             with pa_csv.CSVWriter(partial, schema) as writer:
@@ -257,6 +280,18 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
         if isinstance(exc, OSError):  # a full disk, a folder that may not be written
             raise UserError(f"{output}: cannot write ({_detail(exc)})") from None
         raise
+    return rows
+
+
+def _csv_to_stdout(batches: Iterator[pa.Table], schema: pa.Schema) -> int:
+    """Write tables as CSV for people to standard output; returns the rows written."""
+    sys.stdout.flush()
+    rows = 0
+    with pa_csv.CSVWriter(sys.stdout.buffer, schema) as writer:
+        for table in batches:
+            writer.write_table(for_people(table))
+            rows += table.num_rows
+    sys.stdout.buffer.flush()
     return rows
 
 
