@@ -1,6 +1,6 @@
-"""CSV and .xlsx written for people (FORMATS.md, "Exports") rounds numbers in millimetres and metres to
-0.001, neutralises text cells a spreadsheet would evaluate (OWASP's rule) and escapes control
-characters; Parquet is left as it is."""
+"""CSV and .xlsx written for people (FORMATS.md, "Exports") round numbers in millimetres and
+metres to 0.001, keep text cells a spreadsheet would evaluate from being evaluated (CSV:
+OWASP's rule; .xlsx: typed text) and escape control characters; Parquet is left as it is."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from catenary.measurement.samples import export_table
 from catenary.errors import UserError
+from catenary.measurement.samples import export_table
 from catenary.measurement.spreadsheet import DECIMALS, SHEET_ROWS, column_decimals
 
 from ..conftest import read_sheet

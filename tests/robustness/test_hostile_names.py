@@ -148,9 +148,7 @@ def test_xlsx_outputs_keep_hostile_names_as_text(name: str, database: str, tmp_p
 
 
 @pytest.mark.parametrize("name", sorted(CSV_OUTPUTS))
-def test_csv_to_standard_output_is_the_csv_file(
-    name: str, database: str, tmp_path: Path
-) -> None:
+def test_csv_to_standard_output_is_the_csv_file(name: str, database: str, tmp_path: Path) -> None:
     out = tmp_path / "out.csv"
     assert_succeeded(catenary("--db", database, *CSV_OUTPUTS[name], "-o", out))
     printed = catenary("--db", database, *CSV_OUTPUTS[name], "-o", "-")
