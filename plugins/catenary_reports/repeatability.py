@@ -56,7 +56,8 @@ HISTOGRAM_SCHEMA = pa.schema(
         ("from_mm", pa.float64()),
         ("to_mm", pa.float64()),
         ("count", pa.int64()),
-        ("share", pa.float64()),
+        # a fraction of the points: its decimals in CSV (catenary.measurement.spreadsheet)
+        pa.field("share", pa.float64(), metadata={"unit": "fraction"}),
     ]
 )
 

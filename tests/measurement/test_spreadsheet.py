@@ -13,7 +13,7 @@ import pytest
 
 from catenary.errors import UserError
 from catenary.measurement.samples import export_table
-from catenary.measurement.spreadsheet import DECIMALS, SHEET_ROWS, column_decimals
+from catenary.measurement.spreadsheet import DECIMALS, SHEET_ROWS, column_decimals, for_people
 
 from ..conftest import read_sheet
 
@@ -124,3 +124,20 @@ def test_more_rows_than_a_sheet_holds_is_refused_with_no_file(tmp_path: Path) ->
         f"({SHEET_ROWS - 1} below the header); write .csv or .parquet"
     )
     assert list(tmp_path.iterdir()) == []  # neither the file nor its partial
+
+
+def test_every_number_of_every_csv_output_is_rounded_to_what_it_means() -> None:
+    from catenary.measurement.samples import SAMPLES_SCHEMA
+    from catenary.measurement.spans import SPAN_SCHEMA
+    from catenary_reports.linear_events import EVENT_SCHEMA
+    from catenary_reports.maintenance import _VISIT_SCHEMA
+    from catenary_reports.repeatability import HISTOGRAM_SCHEMA
+    from catenary_reports.run_report import _TABLE_SCHEMA
+
+    schemas = (SPAN_SCHEMA, SAMPLES_SCHEMA, EVENT_SCHEMA, _VISIT_SCHEMA, HISTOGRAM_SCHEMA)
+    for schema in (*schemas, _TABLE_SCHEMA):
+        for field in schema:
+            if pa.types.is_floating(field.type):
+                assert column_decimals(field) is not None, field.name
+    share = pa.table({"share": [1 / 3]}, pa.schema([HISTOGRAM_SCHEMA.field("share")]))
+    assert for_people(share).column(0).to_pylist() == [0.333333]

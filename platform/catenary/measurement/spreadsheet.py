@@ -3,7 +3,8 @@ before it is written as CSV or ``.xlsx``, and the ``.xlsx`` writer (``XlsxTableW
 
 - Numbers are rounded to what they mean: a column in millimetres or metres (its name's unit
   suffix, ``height_mm``, ``chainage_m``, or a ``unit`` in its field's metadata for a column
-  whose name has none) to 0.001 (:data:`DECIMALS`); other numbers are left as computed.
+  whose name has none) to 0.001, a share (unit ``fraction``) to 0.000001 (:data:`DECIMALS`);
+  every floating-point column of the project's CSV outputs has one of these units.
 - A text cell starting with ``=``, ``+``, ``-``, ``@``, tab or carriage return would be
   evaluated as a formula, so it gets a leading single quote (OWASP's rule for CSV injection).
   Only text columns are touched: a number (a negative stagger) stays a number. In ``.xlsx``
@@ -31,8 +32,9 @@ __all__ = ["DECIMALS", "SHEET_ROWS", "XlsxTableWriter", "column_decimals", "for_
 SHEET_ROWS = 1_048_576
 """The rows a spreadsheet's sheet holds, the header's included (Excel, LibreOffice)."""
 
-DECIMALS = {"mm": 3, "m": 3}
-"""Decimals of a number in CSV written for people, by its unit (0.001 mm, 0.001 m)."""
+DECIMALS = {"mm": 3, "m": 3, "fraction": 6}
+"""Decimals of a number in CSV written for people, by its unit (0.001 mm, 0.001 m, a share
+to 0.0001 %)."""
 
 _FORMULA_START = r"^([=+\-@\t\r])"
 
