@@ -269,8 +269,8 @@ def _figures(
             grid, first, last, panels, boundaries=marks, limits=lines, markers=minima
         )
         parts.append(
-            f"<h3>Chainage {low:.1f} to {high:.1f} m{html.escape(masts)}</h3>"
-            f"<figure>{svg(fig, f'run-figure-{index}')}<figcaption>"
+            html.heading(f"Chainage {low:.1f} to {high:.1f} m{masts}", f"plot-{index + 1}")
+            + f"<figure>{svg(fig, f'run-figure-{index}')}<figcaption>"
             "Each pixel column shows the lowest and highest value of its samples "
             f"({grid.bin_m:.2f} m of chainage), so no local minimum is lost; squares mark "
             "each span's minimum; dashed vertical lines are the span boundaries (masts)."
@@ -474,4 +474,4 @@ def write(raw: ReportRequest, output: Path) -> Path:
         _exceedance_section(spans, limits),
         _span_section(spans, limits),
     ]
-    return html.write_text(output, html.page(title, subtitle, sections))
+    return html.write_text(output, html.page(title, subtitle, sections, toc=True))

@@ -239,6 +239,33 @@ def test_run_report_splits_the_chainage_into_figures(database: str, tmp_path: Pa
     assert sum(h.startswith("Chainage ") for h in page.headings) == 3
 
 
+def test_run_report_has_contents_and_print_styles(database: str, tmp_path: Path) -> None:
+    out = tmp_path / "run.html"
+    result = report(database, "run", "1", "--set", "segment_m=100", "-o", out)
+    assert result.exit_code == 0, result.output
+    text = out.read_text()
+    page = Page(text)
+    # the contents link every section, in order, and each figure under its section
+    nav = text[text.index('<nav class="contents"') : text.index("</nav>")]
+    links = Page(nav).addresses
+    assert links == [
+        "#run",
+        "#plots",
+        "#plot-1",
+        "#plot-2",
+        "#plot-3",
+        "#exceedance",
+        "#span-table",
+    ]
+    assert all(link[1:] in page.ids for link in links)
+    assert text.index('id="contents"') < text.index('<section id="run">')
+    # in print: each section after the first on a new page, figures whole, no navigation
+    media = text[text.index("@media print") :]
+    assert "main > section + section { break-before: page; }" in media
+    assert re.search(r"figure, [^{]*\{ break-inside: avoid; \}", media)
+    assert "nav.contents { display: none; }" in media
+
+
 @pytest.mark.parametrize("suffix", [".csv", ".parquet"])
 def test_run_report_table_is_the_span_export_with_its_limit(
     database: str, config: Path, tmp_path: Path, suffix: str
