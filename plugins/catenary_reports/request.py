@@ -11,7 +11,7 @@ from pathlib import Path
 from catenary.config import Settings
 from catenary.errors import UserError
 from catenary.limits import LimitPolicy
-from catenary.measurement.samples import STDOUT
+from catenary.measurement.samples import STDOUT, one_of
 from catenary.plugins import PluginRegistry, ReportRequest
 
 __all__ = ["Option", "Request", "check_output", "parse_request"]
@@ -101,7 +101,7 @@ def check_output(output: Path, suffixes: tuple[str, ...]) -> str:
         return ".csv"
     suffix = output.suffix.lower()
     if suffix not in suffixes:
-        raise UserError(f"{output}: the output's suffix must be {' or '.join(suffixes)}")
+        raise UserError(f"{output}: the output's suffix must be {one_of(suffixes)}")
     if not output.parent.is_dir():
         raise UserError(f"{output}: no folder {output.parent}")
     return suffix

@@ -319,7 +319,7 @@ def test_run_report_refuses_bad_requests_in_one_line_and_keeps_the_old_file(
 
 def test_a_bad_suffix_is_refused(database: str, tmp_path: Path) -> None:
     message = one_line_error(report(database, "run", "1", "-o", tmp_path / "run.pdf"))
-    assert "run.pdf: the output's suffix must be .html or .csv or .parquet" in message
+    assert "run.pdf: the output's suffix must be .html, .csv, .xlsx or .parquet" in message
     missing = tmp_path / "missing" / "run.html"
     assert f"{missing}: no folder {missing.parent}" in one_line_error(
         report(database, "run", "1", "-o", missing)
@@ -447,7 +447,7 @@ def test_linear_events_default_to_the_latest_run_of_each_track(
     message = one_line_error(report(database, "linear-events", "1", "--line", "L9", "-o", out))
     assert "run 1 is on line 'demo-line' track '1', not line 'L9'" in message
     message = one_line_error(report(database, "linear-events", "-o", tmp_path / "e.html"))
-    assert "must be .csv or .parquet" in message
+    assert "must be .csv, .xlsx or .parquet" in message
 
 
 # -- repeatability ---------------------------------------------------------------------------

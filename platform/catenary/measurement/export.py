@@ -17,6 +17,7 @@ from catenary.measurement.samples import (
     TABLE_SUFFIXES,
     export_schema,
     export_table,
+    one_of,
     run_samples,
     sample_tables,
 )
@@ -50,7 +51,7 @@ def export_run(settings: Settings, reference: str, what: str, output: Path) -> E
     suffix = output.suffix.lower()
     geojson = suffix == ".geojson" and what == "spans"
     if str(output) != STDOUT and suffix not in TABLE_SUFFIXES and not geojson:
-        known = " or ".join((*TABLE_SUFFIXES, *((".geojson",) if what == "spans" else ())))
+        known = one_of((*TABLE_SUFFIXES, *((".geojson",) if what == "spans" else ())))
         raise UserError(f"{output}: the output's suffix must be {known} (or -, standard output)")
     with (
         open_database(settings) as engine,

@@ -47,6 +47,7 @@ __all__ = [
     "SampleWriter",
     "StoredSamples",
     "export_table",
+    "one_of",
     "read_sample_batches",
     "run_profile",
     "run_samples",
@@ -249,7 +250,7 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
         return _csv_to_stdout(batches, schema)
     suffix = output.suffix.lower()
     if suffix not in TABLE_SUFFIXES:
-        raise UserError(f"{output}: the output's suffix must be {' or '.join(TABLE_SUFFIXES)}")
+        raise UserError(f"{output}: the output's suffix must be {one_of(TABLE_SUFFIXES)}")
     partial = output.with_name(f".{output.name}.partial")
     rows = 0
     try:
@@ -281,6 +282,11 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
             raise UserError(f"{output}: cannot write ({_detail(exc)})") from None
         raise
     return rows
+
+
+def one_of(suffixes: tuple[str, ...]) -> str:
+    """``suffixes`` as a sentence says them: ".a, .b or .c"."""
+    return " or ".join([", ".join(suffixes[:-1]), suffixes[-1]] if len(suffixes) > 1 else suffixes)
 
 
 def _csv_to_stdout(batches: Iterator[pa.Table], schema: pa.Schema) -> int:
