@@ -7,6 +7,8 @@ from __future__ import annotations
 import csv
 import re
 import shutil
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -155,6 +157,23 @@ def test_csv_to_standard_output_is_the_csv_file(name: str, database: str, tmp_pa
     assert_succeeded(printed)
     assert printed.stdout == out.read_text(encoding="utf-8")
     assert "written to standard output" in printed.stderr
+
+
+def test_csv_to_a_reader_that_stops_early_ends_in_one_line(database: str) -> None:
+    command = [sys.executable, "-m", "catenary.cli", "--db", database, "export", "1"]
+    with subprocess.Popen(
+        [*command, "--what", "samples", "-o", "-"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    ) as reader:
+        assert reader.stdout is not None and reader.stderr is not None
+        assert reader.stdout.readline().startswith('"scan","position_m","chainage_m",')
+        reader.stdout.close()  # as `| head -1` does
+        error = reader.stderr.read()
+        assert reader.wait(timeout=120) == 1
+    assert error.startswith("Error: standard output closed by its reader: "), error
+    assert len(error.strip().splitlines()) == 1 and "Traceback" not in error
 
 
 @pytest.mark.parametrize("report", ["run", "maintenance"])

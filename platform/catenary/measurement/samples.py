@@ -17,6 +17,7 @@ scan and wire) and read back in row groups, so neither side holds a whole run in
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager, suppress
@@ -290,14 +291,22 @@ def one_of(suffixes: tuple[str, ...]) -> str:
 
 
 def _csv_to_stdout(batches: Iterator[pa.Table], schema: pa.Schema) -> int:
-    """Write tables as CSV for people to standard output; returns the rows written."""
+    """Write tables as CSV for people to standard output; returns the rows written. A reader
+    that stops early (``| head``) is a ``UserError`` saying how many rows were written."""
     sys.stdout.flush()
     rows = 0
-    with pa_csv.CSVWriter(sys.stdout.buffer, schema) as writer:
-        for table in batches:
-            writer.write_table(for_people(table))
-            rows += table.num_rows
-    sys.stdout.buffer.flush()
+    try:
+        with pa_csv.CSVWriter(sys.stdout.buffer, schema) as writer:
+            for table in batches:
+                writer.write_table(for_people(table))
+                rows += table.num_rows
+        sys.stdout.buffer.flush()
+    except BrokenPipeError:
+        # nothing more reaches the reader, Python's own flush at exit included
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        raise UserError(
+            f"standard output closed by its reader: {rows} rows or fewer written"
+        ) from None
     return rows
 
 
