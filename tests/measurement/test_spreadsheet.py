@@ -5,6 +5,7 @@ OWASP's rule; .xlsx: typed text) and escape control characters; Parquet is left 
 from __future__ import annotations
 
 import csv
+from collections.abc import Iterator
 from pathlib import Path
 
 import pyarrow as pa
@@ -141,3 +142,16 @@ def test_every_number_of_every_csv_output_is_rounded_to_what_it_means() -> None:
                 assert column_decimals(field) is not None, field.name
     share = pa.table({"share": [1 / 3]}, pa.schema([HISTOGRAM_SCHEMA.field("share")]))
     assert for_people(share).column(0).to_pylist() == [0.333333]
+
+
+def test_a_known_total_too_large_for_a_sheet_is_refused_before_reading(tmp_path: Path) -> None:
+    out = tmp_path / "samples.xlsx"
+    read: list[int] = []
+
+    def batches() -> Iterator[pa.Table]:
+        read.append(1)
+        yield pa.table({"n": [1]})
+
+    with pytest.raises(UserError, match=f"{SHEET_ROWS} rows is more than a sheet holds"):
+        export_table(batches(), pa.schema([("n", pa.int64())]), out, total=SHEET_ROWS)
+    assert read == [] and list(tmp_path.iterdir()) == []

@@ -19,6 +19,7 @@ from catenary.measurement.samples import (
     export_table,
     one_of,
     run_samples,
+    sample_rows,
     sample_tables,
 )
 from catenary.measurement.spans import SPAN_SCHEMA, span_table
@@ -71,7 +72,9 @@ def export_run(settings: Settings, reference: str, what: str, output: Path) -> E
             written = export_table(iter([span_table(rows)]), SPAN_SCHEMA, output)
         else:
             samples = run_samples(open_store(settings), run)
-            written = export_table(sample_tables(samples), export_schema(samples), output)
+            written = export_table(
+                sample_tables(samples), export_schema(samples), output, sample_rows(samples)
+            )
         return Exported(written, run.id)
 
 

@@ -52,6 +52,7 @@ __all__ = [
     "read_sample_batches",
     "run_profile",
     "run_samples",
+    "sample_rows",
     "trusted",
 ]
 
@@ -236,7 +237,9 @@ def trusted(batch: Mapping[str, np.ndarray[Any, Any]]) -> BoolArray:
     return np.asarray(~batch["vehicle_fault"] & ~batch["selection_uncertain"], dtype=bool)
 
 
-def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -> int:
+def export_table(
+    batches: Iterator[pa.Table], schema: pa.Schema, output: Path, total: int | None = None
+) -> int:
     """Write tables to ``output`` as CSV, ``.xlsx`` or Parquet (by its suffix; ``-``: CSV to
     standard output); returns the rows written.
 
@@ -245,7 +248,8 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
     ``output``. CSV and ``.xlsx`` are for people: numbers rounded to what they mean, text
     cells that a spreadsheet would evaluate neutralised, control characters escaped
     (``for_people``). More rows than an ``.xlsx`` sheet holds is a ``UserError`` naming
-    ``output`` and the count, and writes nothing.
+    ``output`` and the count, and writes nothing: before any row is written when the caller
+    knows the ``total``, else on the batch that overflows.
     """
     if str(output) == STDOUT:
         return _csv_to_stdout(batches, schema)
@@ -261,13 +265,13 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
                     writer.write_table(table)
                     rows += table.num_rows
         elif suffix == ".xlsx":
+            if total is not None:
+                _check_sheet_rows(output, total)
             with XlsxTableWriter(partial, schema) as sheet:
                 for table in batches:
                     if 1 + rows + table.num_rows > SHEET_ROWS:
-                        total = rows + table.num_rows + sum(t.num_rows for t in batches)
-                        raise UserError(
-                            f"{output}: {total} rows is more than a sheet holds "
-                            f"({SHEET_ROWS - 1} below the header); write .csv or .parquet"
+                        _check_sheet_rows(
+                            output, rows + table.num_rows + sum(t.num_rows for t in batches)
                         )
                     sheet.write_table(table)
                     rows += table.num_rows
@@ -283,6 +287,21 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
             raise UserError(f"{output}: cannot write ({_detail(exc)})") from None
         raise
     return rows
+
+
+def _check_sheet_rows(output: Path, total: int) -> None:
+    """Refuse ``total`` rows to an ``.xlsx`` sheet ``output`` if they do not fit under its
+    header."""
+    if 1 + total > SHEET_ROWS:
+        raise UserError(
+            f"{output}: {total} rows is more than a sheet holds "
+            f"({SHEET_ROWS - 1} below the header); write .csv or .parquet"
+        )
+
+
+def sample_rows(path: SamplesSource) -> int:
+    """The rows of a samples file (from its footer, without reading them)."""
+    return int(_open(path).metadata.num_rows)
 
 
 def one_of(suffixes: tuple[str, ...]) -> str:
