@@ -5,6 +5,7 @@ characters, HTML escaped, the terminal without raw escape sequences."""
 from __future__ import annotations
 
 import csv
+import json
 import re
 import shutil
 import subprocess
@@ -193,6 +194,19 @@ def test_alerts_list_carries_no_control_character(database: str) -> None:
     assert_succeeded(result)
     assert not CONTROL.search(result.stdout + result.stderr), repr(result.stdout[:400])
     assert "\\x1b]0;owned\\x07" in result.stdout and "<b>L</b>\\x1b[5m" in result.stdout
+
+
+@pytest.mark.parametrize(
+    "command", [("alerts", "list", "--status", "all"), ("runs", "list")], ids=" ".join
+)
+def test_json_listings_carry_the_names_escaped(database: str, command: tuple[str, ...]) -> None:
+    result = catenary("--db", database, *command, "--format", "json")
+    assert_succeeded(result)
+    assert not CONTROL.search(result.stdout), repr(result.stdout[:400])
+    records = json.loads(result.stdout)
+    assert records and all(r["line"] == HOSTILE_LINE for r in records)  # as stored
+    if command[0] == "alerts":
+        assert {r["mast_from"] for r in records} & set(HOSTILE_MASTS)
 
 
 def test_the_database_engine_sees_the_hostile_names(database: str) -> None:
