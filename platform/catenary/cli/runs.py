@@ -308,14 +308,17 @@ def list_runs(ctx: click.Context, line: str | None, track: str | None, output_fo
     if output_format == "json":
         echo_json(records)
         return
+    def minute(text: str | None) -> str:
+        return "-" if text is None else f"{text[:16].replace('T', ' ')} UTC"
+
     for r in records:
         length = "-" if r["length_m"] is None else f"{r['length_m']:.1f} m"
         click.echo(
             printable(
                 f"{r['id']:>6}  {r['uuid'][:8]}  {r['line']}/{r['track'] or '-'}  "
-                f"{r['direction']:<10} {r['vehicle']}  {r['started_at']}  {r['scans']} scans  "
-                f"{r['status']:<10} {length}  processing {(r['processing_uuid'] or '-')[:8]} "
-                f"at {r['processed_at'] or '-'}"
+                f"{r['direction']:<10} {r['vehicle']}  {minute(r['started_at'])}  "
+                f"{r['scans']} scans  {r['status']:<10} {length}  processing "
+                f"{(r['processing_uuid'] or '-')[:8]} at {minute(r['processed_at'])}"
             )
         )
     click.echo(f"{len(records)} run(s)")
