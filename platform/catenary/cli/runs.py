@@ -308,6 +308,7 @@ def list_runs(ctx: click.Context, line: str | None, track: str | None, output_fo
     if output_format == "json":
         echo_json(records)
         return
+
     def minute(text: str | None) -> str:
         return "-" if text is None else f"{text[:16].replace('T', ' ')} UTC"
 
