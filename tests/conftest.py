@@ -19,11 +19,13 @@ import subprocess
 import sys
 import time
 import uuid
+import zipfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
+from xml.etree import ElementTree
 
 import pytest
 import tomli_w
@@ -432,3 +434,32 @@ def small_rig_file(tmp_path: Path) -> Path:
     path = tmp_path / "small.sim.toml"
     path.write_text(text)
     return path
+
+
+_SHEET = "{http://schemas.openxmlformats.org/spreadsheetml/2006/main}"
+
+
+def read_sheet(path: Path) -> list[list[Any]]:
+    """The first sheet of an ``.xlsx`` file as XlsxWriter writes it (constant memory: inline
+    text), row by row: text as str, numbers as float, booleans as bool, empty cells as None.
+    A formula cell fails the read: nothing written for people may be one."""
+    with zipfile.ZipFile(path) as book:
+        root = ElementTree.fromstring(book.read("xl/worksheets/sheet1.xml"))
+    rows: list[list[Any]] = []
+    for row in root.iter(f"{_SHEET}row"):
+        cells: list[Any] = []
+        for cell in row.iter(f"{_SHEET}c"):
+            assert cell.find(f"{_SHEET}f") is None, ElementTree.tostring(cell)
+            reference = cell.attrib["r"].rstrip("0123456789")
+            column = sum((ord(c) - 64) * 26**i for i, c in enumerate(reversed(reference))) - 1
+            cells.extend([None] * (column - len(cells)))
+            kind = cell.attrib.get("t")
+            if kind == "inlineStr":
+                cells.append("".join(t.text or "" for t in cell.iter(f"{_SHEET}t")))
+            elif kind == "b":
+                cells.append(cell.findtext(f"{_SHEET}v") == "1")
+            else:
+                assert kind is None, kind
+                cells.append(float(cell.findtext(f"{_SHEET}v") or "nan"))
+        rows.append(cells)
+    return rows

@@ -88,7 +88,7 @@ def run_demo(context: CommandContext, out: Path, length_m: float, seed: int) -> 
 
     click.echo("4/4 writing the reports")
     spans = out / "spans.csv"
-    written, _ = export_run(settings, str(result.run_id), "spans", spans)
+    written = export_run(settings, str(result.run_id), "spans", spans).rows
     click.echo(f"{written} spans of run {result.run_id} written to {spans}")
     preset = None if configured else DEMO_POLICY  # None: the config's own
     request = report_request(settings, registry, runs=(str(result.run_id),), policy=preset)

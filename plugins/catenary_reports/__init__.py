@@ -48,7 +48,8 @@ def catenary_reporters() -> list[Reporter]:
             name="run",
             description=(
                 "one run (RUN): header, thickness/height/stagger along the chainage, limit "
-                "exceedances, spans; .html, or .csv/.parquet (the span table with its limit); "
+                "exceedances, spans; .html, or .csv/.xlsx/.parquet (the span table with its "
+                "limit; -o -: CSV to standard output); "
                 "option (--set KEY=VALUE) segment_m 1000 (chainage per figure, 50 to 1000000)"
             ),
             write=_lazy("run_report"),
@@ -57,7 +58,7 @@ def catenary_reporters() -> list[Reporter]:
             name="maintenance",
             description=(
                 "open alerts by urgency, forecasts and the spans to visit with their hot spots "
-                "([--line L [--track T]]); .html, or .csv/.parquet (the spans to visit)"
+                "([--line L [--track T]]); .html, or .csv/.xlsx/.parquet (the spans to visit)"
             ),
             write=_lazy("maintenance"),
         ),
@@ -66,7 +67,7 @@ def catenary_reporters() -> list[Reporter]:
             description=(
                 "per-span results as linear events, one row per span, wire and measure "
                 "([--line L [--track T]] [RUN|--latest]; default: the latest run of every "
-                "track); .csv or .parquet"
+                "track); .csv, .xlsx or .parquet"
             ),
             write=_lazy("linear_events"),
         ),
@@ -74,7 +75,7 @@ def catenary_reporters() -> list[Reporter]:
             name="repeatability",
             description=(
                 "two runs over the same section (RUN_A RUN_B): thickness curves and the "
-                "histogram of differences; .html, or .csv/.parquet (the histogram); "
+                "histogram of differences; .html, or .csv/.xlsx/.parquet (the histogram); "
                 "options (--set KEY=VALUE) tolerance_mm 0.1 (0.001 to 5), "
                 "bin_mm 0.02 (0.001 to 1), max_shift_m 1.0 (0 to 10)"
             ),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import html
 import math
+import re
 from collections.abc import Iterable, Sequence
 from datetime import datetime
 from pathlib import Path
@@ -12,8 +13,10 @@ from catenary.text import printable
 
 __all__ = [
     "Cell",
+    "contents",
     "escape",
     "facts",
+    "heading",
     "note",
     "number",
     "page",
@@ -67,7 +70,25 @@ ul.counts li { border: 1px solid var(--line); border-radius: 4px; padding: 6px 1
 ul.counts b { font-size: 18px; display: block; }
 ul.counts li.plan { background: #fff7d6; } ul.counts li.urgent { background: #ffe3c4; }
 ul.counts li.critical { background: #ffd0cc; }
+nav.contents { margin: 14px 0 4px; font-size: 13px; }
+nav.contents h2 { border: none; margin: 0 0 4px; }
+nav.contents ol { margin: 0; padding-left: 22px; } nav.contents ol ol { columns: 2; }
+@page { margin: 14mm 12mm; }
+@media print {
+  nav.contents { display: none; }
+  header { background: none; color: var(--ink); padding: 0 0 6px; }
+  header p { color: var(--muted); }
+  main { padding: 0; max-width: none; }
+  main > section + section { break-before: page; }
+  h2, h3 { break-after: avoid; }
+  figure, table.facts, tr { break-inside: avoid; }
+  thead { display: table-header-group; }
+  tr.plan td, tr.urgent td, tr.critical td, span.tag { print-color-adjust: exact; }
+}
 """
+"""On screen a page; in print (``@media print``) each section after the first starts a new
+page, a figure or a table row is never split across pages, a table's header repeats on each
+page and the table of contents (a screen's navigation) is left out."""
 
 
 class Cell:
@@ -143,19 +164,45 @@ def section(title: str, *parts: str, section_id: str | None = None) -> str:
     return f"<section{ident}><h2>{escape(title)}</h2>{''.join(parts)}</section>"
 
 
+_HEADING = re.compile(r'<section id="([^"]+)"><h2>(.*?)</h2>|<h3 id="([^"]+)">(.*?)</h3>')
+"""A section's id and title, or a heading's within it, as ``section`` and ``heading`` write
+them (already escaped)."""
+
+
+def heading(title: str, heading_id: str) -> str:
+    """A heading within a section, listed under it in the table of contents."""
+    return f'<h3 id="{escape(heading_id)}">{escape(title)}</h3>'
+
+
+def contents(sections: Iterable[str]) -> str:
+    """The table of contents of ``sections`` (built by ``section``, with an id): a link to
+    each, and under it to each of its ``heading``s."""
+    items: list[str] = []
+    for part in sections:
+        entries = _HEADING.findall(part)
+        links = [f'<a href="#{i or j}">{t or u}</a>' for i, t, j, u in entries]
+        if not links or not entries[0][0]:
+            continue
+        below = "".join(f"<li>{link}</li>" for link in links[1:])
+        items.append(f"<li>{links[0]}{f'<ol>{below}</ol>' if below else ''}</li>")
+    return f'<nav class="contents" id="contents"><h2>Contents</h2><ol>{"".join(items)}</ol></nav>'
+
+
 def note(text: str) -> str:
     return f'<p class="note">{escape(text)}</p>'
 
 
-def page(title: str, subtitle: str, sections: Iterable[str]) -> str:
-    """The whole document."""
+def page(title: str, subtitle: str, sections: Iterable[str], *, toc: bool = False) -> str:
+    """The whole document; ``toc``: a table of contents before the sections."""
+    sections = list(sections)
+    nav = contents(sections) if toc else ""
     return (
         "<!DOCTYPE html>\n"
         '<html lang="en"><head><meta charset="utf-8">'
         '<meta name="viewport" content="width=device-width, initial-scale=1">'
         f"<title>{escape(title)}</title><style>{CSS}</style></head>"
         f"<body><header><h1>{escape(title)}</h1><p>{escape(subtitle)}</p></header>"
-        f"<main>{''.join(sections)}</main></body></html>\n"
+        f"<main>{nav}{''.join(sections)}</main></body></html>\n"
     )
 
 

@@ -16,7 +16,7 @@ later:
 | ``run_id``, ``date`` | the run measured, and its date (UTC, ``YYYY-MM-DD``) |
 
 Runs: the one given (``RUN`` or ``--latest``), else the latest complete run (by date) of every
-track of ``--line`` (and ``--track``), or of every line. ``.csv`` or ``.parquet``.
+track of ``--line`` (and ``--track``), or of every line. ``.csv``, ``.xlsx`` or ``.parquet``.
 """
 
 from __future__ import annotations
@@ -138,7 +138,7 @@ def _events(session: Session, run: Run) -> pa.Table:
 def write(raw: ReportRequest, output: Path) -> Path:
     """Write the linear events of the runs chosen by ``raw`` (module docstring) to ``output``."""
     request = parse_request("linear-events", raw, runs=(0, 1), line=True)
-    check_output(output, (".csv", ".parquet"))
+    check_output(output, (".csv", ".xlsx", ".parquet"))
     with (
         open_database(request.settings) as engine,
         session_scope(engine, read_only=True) as session,

@@ -23,7 +23,7 @@ line (``--line``, optionally ``--track``) or every line:
 
   Crossings, connectors and phase breaks are in no table, so they are not named.
 
-``.html`` holds all three; ``.csv``/``.parquet`` the spans to visit.
+``.html`` holds all three; ``.csv``/``.xlsx``/``.parquet`` the spans to visit.
 """
 
 from __future__ import annotations
@@ -520,7 +520,7 @@ def _html(
 def write(raw: ReportRequest, output: Path) -> Path:
     """Write the maintenance report of ``raw['line']`` (every line when None) to ``output``."""
     request = parse_request("maintenance", raw, line=True)
-    suffix = check_output(output, (".html", ".csv", ".parquet"))
+    suffix = check_output(output, (".html", ".csv", ".xlsx", ".parquet"))
     with (
         open_database(request.settings) as engine,
         session_scope(engine, read_only=True) as session,

@@ -4,7 +4,7 @@
 and takes B's residual thickness minus A's at every sample of A. ``.html``: both runs' facts, the
 comparison's figures (points, share within the tolerance, RMS, p95, max, shift), (a) both
 runs' residual thickness along the chainage with the difference below it and (b) the
-histogram of the differences; ``.csv``/``.parquet``: the histogram over every difference
+histogram of the differences; ``.csv``/``.xlsx``/``.parquet``: the histogram over every difference
 (``from_mm``, ``to_mm``, ``count``, ``share``). Options: ``tolerance_mm`` (0.1, the paper's),
 ``bin_mm`` (0.02), ``max_shift_m`` (1.0).
 """
@@ -56,7 +56,8 @@ HISTOGRAM_SCHEMA = pa.schema(
         ("from_mm", pa.float64()),
         ("to_mm", pa.float64()),
         ("count", pa.int64()),
-        ("share", pa.float64()),
+        # a fraction of the points: its decimals in CSV (catenary.measurement.spreadsheet)
+        pa.field("share", pa.float64(), metadata={"unit": "fraction"}),
     ]
 )
 
@@ -147,7 +148,7 @@ def write(raw: ReportRequest, output: Path) -> Path:
         runs=(2, 2),
         options=OPTIONS,
     )
-    suffix = check_output(output, (".html", ".csv", ".parquet"))
+    suffix = check_output(output, (".html", ".csv", ".xlsx", ".parquet"))
     settings, options = request.settings, request.options
     with (
         open_database(settings) as engine,

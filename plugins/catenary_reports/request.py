@@ -11,6 +11,7 @@ from pathlib import Path
 from catenary.config import Settings
 from catenary.errors import UserError
 from catenary.limits import LimitPolicy
+from catenary.measurement.samples import STDOUT, one_of
 from catenary.plugins import PluginRegistry, ReportRequest
 
 __all__ = ["Option", "Request", "check_output", "parse_request"]
@@ -94,11 +95,13 @@ def parse_request(
 
 
 def check_output(output: Path, suffixes: tuple[str, ...]) -> str:
-    """The output's suffix, lower case, if it is one of ``suffixes`` and its folder exists;
-    else a ``UserError``."""
+    """The output's suffix, lower case, if it is one of ``suffixes`` and its folder exists
+    (``-``, standard output: ``.csv`` if it is one of them); else a ``UserError``."""
+    if str(output) == STDOUT and ".csv" in suffixes:
+        return ".csv"
     suffix = output.suffix.lower()
     if suffix not in suffixes:
-        raise UserError(f"{output}: the output's suffix must be {' or '.join(suffixes)}")
+        raise UserError(f"{output}: the output's suffix must be {one_of(suffixes)}")
     if not output.parent.is_dir():
         raise UserError(f"{output}: no folder {output.parent}")
     return suffix

@@ -5,11 +5,12 @@ chainage as stored), residual thickness, stagger and height along the chainage p
 paper's figures 14-15) in figures of at most ``segment_m`` of chainage each, span boundaries
 and mast codes marked, the policy's limits drawn and each span's minimum marked; the spans
 whose minimum residual thickness meets a local limit of the configured policy, most severe
-first (without a policy, the thinnest spans); the track's previous complete run beside this
-one (its date, each span's minimum then and now, the wear since in mm and mm/year, most
-worn first: ``catenary.maintenance.trends``); and every span and wire. ``.csv``/``.parquet``:
-the span table (the ``spans`` export's columns) with the most severe local limit each row
-meets.
+first (without a policy, the thinnest spans); the line-scan crops at the minima of the spans
+beyond a limit and of the thinnest others; the track's previous complete run beside this one
+(its date, each span's minimum then and now, the wear since in mm and mm/year, most worn
+first: ``catenary.maintenance.trends``); and every span and wire. ``.csv``/``.xlsx``/
+``.parquet`` (``-``: CSV to standard output): the span table (the ``spans`` export's columns)
+with the most severe local limit each row meets.
 
 The samples file is read twice, row group by row group (its chainage range, then the
 envelopes): memory is bounded by the plots' columns, not by the run's length. Samples with a
@@ -280,8 +281,8 @@ def _figures(
             grid, first, last, panels, boundaries=marks, limits=lines, markers=minima
         )
         parts.append(
-            f"<h3>Chainage {low:.1f} to {high:.1f} m{html.escape(masts)}</h3>"
-            f"<figure>{svg(fig, f'run-figure-{index}')}<figcaption>"
+            html.heading(f"Chainage {low:.1f} to {high:.1f} m{masts}", f"plot-{index + 1}")
+            + f"<figure>{svg(fig, f'run-figure-{index}')}<figcaption>"
             "Each pixel column shows the lowest and highest value of its samples "
             f"({grid.bin_m:.2f} m of chainage), so no local minimum is lost; squares mark "
             "each span's minimum; dashed vertical lines are the span boundaries (masts)."
@@ -539,7 +540,7 @@ def _table(spans: Sequence[SpanMeasurement], limits: _Limits) -> pa.Table:
 def write(raw: ReportRequest, output: Path) -> Path:
     """Write the run report of ``raw['runs'][0]`` to ``output`` (module docstring)."""
     request = parse_request("run", raw, runs=(1, 1), options=OPTIONS)
-    suffix = check_output(output, (".html", ".csv", ".parquet"))
+    suffix = check_output(output, (".html", ".csv", ".xlsx", ".parquet"))
     settings = request.settings
     with (
         open_database(settings) as engine,
@@ -575,7 +576,7 @@ def write(raw: ReportRequest, output: Path) -> Path:
         previous,
         _span_section(spans, limits),
     ]
-    return html.write_text(output, html.page(title, subtitle, sections))
+    return html.write_text(output, html.page(title, subtitle, sections, toc=True))
 
 
 def _evidence_section(

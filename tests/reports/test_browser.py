@@ -9,6 +9,7 @@ machine without it fails here rather than skipping.
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -118,3 +119,30 @@ def test_the_maintenance_report_renders_in_chromium(alerts: str, tmp_path: Path)
         tmp_path,
         ['id="alerts-critical"', 'id="forecasts"', 'id="visits"', "masts 12/02 to 12/03"],
     )
+
+
+def test_the_run_report_prints_each_section_on_its_own_pages(
+    database: str, config: Path, tmp_path: Path
+) -> None:
+    page = tmp_path / "run.html"
+    args = ["report", "run", "1", "--set", "segment_m=100", "-o", page]
+    result = invoke("--config", config, "--db", database, *args)
+    assert result.exit_code == 0, result.output
+    text = page.read_text(encoding="utf-8")
+    unstyled = tmp_path / "unstyled.html"  # the same page without its print styles
+    unstyled.write_text(re.sub(r"@media print \{.*?\n\}\n", "", text, flags=re.S))
+    assert "@media print" in text and "@media print" not in unstyled.read_text()
+
+    def printed_pages(html: Path) -> int:
+        pdf = html.with_suffix(".pdf")
+        profile = tmp_path / f"profile-print-{html.stem}"
+        browse(html, profile, f"--print-to-pdf={pdf}", "--no-pdf-header-footer")
+        return len(re.findall(rb"/Type\s*/Page\b(?!s)", pdf.read_bytes()))
+
+    pages = printed_pages(page)
+    # four sections, each from a new page (the three figures and the span table may take more)
+    assert 4 <= pages <= 12, pages
+    assert printed_pages(unstyled) < pages
+    # on screen the same page is one long document with its contents at the top
+    dom = browse(page, tmp_path / "profile-screen", "--dump-dom").stdout
+    assert dom.index('id="contents"') < dom.index('id="run"')

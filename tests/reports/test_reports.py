@@ -239,6 +239,33 @@ def test_run_report_splits_the_chainage_into_figures(database: str, tmp_path: Pa
     assert sum(h.startswith("Chainage ") for h in page.headings) == 3
 
 
+def test_run_report_has_contents_and_print_styles(database: str, tmp_path: Path) -> None:
+    out = tmp_path / "run.html"
+    result = report(database, "run", "1", "--set", "segment_m=100", "-o", out)
+    assert result.exit_code == 0, result.output
+    text = out.read_text()
+    page = Page(text)
+    # the contents link every section, in order, and each figure under its section
+    nav = text[text.index('<nav class="contents"') : text.index("</nav>")]
+    links = Page(nav).addresses
+    assert links == [
+        "#run",
+        "#plots",
+        "#plot-1",
+        "#plot-2",
+        "#plot-3",
+        "#exceedance",
+        "#span-table",
+    ]
+    assert all(link[1:] in page.ids for link in links)
+    assert text.index('id="contents"') < text.index('<section id="run">')
+    # in print: each section after the first on a new page, figures whole, no navigation
+    media = text[text.index("@media print") :]
+    assert "main > section + section { break-before: page; }" in media
+    assert re.search(r"figure, [^{]*\{ break-inside: avoid; \}", media)
+    assert "nav.contents { display: none; }" in media
+
+
 @pytest.mark.parametrize("suffix", [".csv", ".parquet"])
 def test_run_report_table_is_the_span_export_with_its_limit(
     database: str, config: Path, tmp_path: Path, suffix: str
@@ -292,7 +319,7 @@ def test_run_report_refuses_bad_requests_in_one_line_and_keeps_the_old_file(
 
 def test_a_bad_suffix_is_refused(database: str, tmp_path: Path) -> None:
     message = one_line_error(report(database, "run", "1", "-o", tmp_path / "run.pdf"))
-    assert "run.pdf: the output's suffix must be .html or .csv or .parquet" in message
+    assert "run.pdf: the output's suffix must be .html, .csv, .xlsx or .parquet" in message
     missing = tmp_path / "missing" / "run.html"
     assert f"{missing}: no folder {missing.parent}" in one_line_error(
         report(database, "run", "1", "-o", missing)
@@ -420,7 +447,7 @@ def test_linear_events_default_to_the_latest_run_of_each_track(
     message = one_line_error(report(database, "linear-events", "1", "--line", "L9", "-o", out))
     assert "run 1 is on line 'demo-line' track '1', not line 'L9'" in message
     message = one_line_error(report(database, "linear-events", "-o", tmp_path / "e.html"))
-    assert "must be .csv or .parquet" in message
+    assert "must be .csv, .xlsx or .parquet" in message
 
 
 # -- repeatability ---------------------------------------------------------------------------

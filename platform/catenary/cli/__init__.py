@@ -20,7 +20,7 @@ from catenary.cli.maintenance import alerts, maintenance
 from catenary.cli.plugins import plugins_command
 from catenary.cli.record import record
 from catenary.cli.report import report
-from catenary.cli.runs import compare, export, process
+from catenary.cli.runs import compare, export, process, runs
 from catenary.cli.services import notify, scheduler
 from catenary.cli.wiretypes import wire_types_command
 
@@ -55,6 +55,7 @@ for _command in (
     process,
     export,
     compare,
+    runs,
     push,
     pull,
     notify,

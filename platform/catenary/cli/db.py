@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import click
 
 from catenary.cli.app import app_of
+from catenary.cli.listing import echo_json, format_option
 from catenary.plugins import database_option
 
 if TYPE_CHECKING:
@@ -82,17 +83,30 @@ def downgrade_command(ctx: click.Context, revision: str) -> None:
 
 
 @db.command("current")
+@format_option()
 @database_option
 @click.pass_context
-def current_command(ctx: click.Context) -> None:
-    """Show the database's revision and whether it is the one this catenary needs."""
+def current_command(ctx: click.Context, output_format: str) -> None:
+    """Show the database's revision and whether it is the one this catenary needs.
+
+    --format json: one object {"database", "revision", "head", "at_head", "known"}."""
     from catenary.storage import migrate
     from catenary.storage.database import mask_url
 
     with _engine(ctx) as engine:
         revision = migrate.current_revision(engine)
         where = mask_url(engine.url)
-        if revision is None:
+        if output_format == "json":
+            echo_json(
+                {
+                    "database": where,
+                    "revision": revision,
+                    "head": migrate.head_revision(),
+                    "at_head": revision == migrate.head_revision(),
+                    "known": revision is None or migrate.is_known_revision(revision),
+                }
+            )
+        elif revision is None:
             click.echo(f"database {where} is not migrated: run 'catenary db upgrade'")
         elif revision != migrate.head_revision() and migrate.is_known_revision(revision):
             click.echo(

@@ -8,11 +8,12 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from catenary.cli.app import app_of
+from catenary.cli.listing import echo_json, format_option, utc_text
 from catenary.domain import (
     ALERT_STATUSES,
     CODE_LENGTH,
@@ -145,6 +146,54 @@ def _what(alert: Alert) -> str:
     return f"{scope} {alert.value:.2f} mm, limit {alert.threshold:.2f} mm"
 
 
+def _alert_record(alert: Alert) -> dict[str, Any]:
+    """An alert as ``--format json`` and GeoJSON's properties show it."""
+    return {
+        "id": alert.id,
+        "line": alert.track.line.code,
+        "track": alert.track.code,
+        "wire": alert.wire,
+        "mast_from": alert.mast_from,
+        "mast_to": alert.mast_to,
+        "start_chainage_m": alert.start_chainage_m,
+        "end_chainage_m": alert.end_chainage_m,
+        "rule": alert.rule,
+        "level": alert.level,
+        "kind": alert.kind,
+        "value": alert.value,
+        "threshold": alert.threshold,
+        "status": alert.status,
+        "raised_at": utc_text(alert.raised_at),
+        "acknowledged_by": alert.acknowledged_by,
+        "acknowledged_at": utc_text(alert.acknowledged_at),
+        "resolved_at": utc_text(alert.resolved_at),
+        "resolved_by_run_id": alert.resolved_by_run_id,
+        "resolved_by_action_id": alert.resolved_by_action_id,
+        "span_measurement_id": alert.span_measurement_id,
+        "details": alert.details,
+    }
+
+
+def _alerts_geojson(session: Session, found: list[Alert]) -> tuple[dict[str, Any], int]:
+    """The alerts as GeoJSON features over their stretch, and how many were left out for
+    want of mast coordinates (none on any of their tracks: a ``UserError``)."""
+    from catenary.geojson import feature, feature_collection
+    from catenary.measurement.export import track_positions
+
+    positions = {t: track_positions(session, t)[0] for t in {a.track_id for a in found}}
+    if found and all(p.empty for p in positions.values()):
+        raise UserError(
+            "no mast of the alerts' tracks has coordinates (latitude, longitude; FORMATS.md, "
+            "Mast register): no GeoJSON"
+        )
+    features = []
+    for alert in found:
+        geometry = positions[alert.track_id].stretch(alert.start_chainage_m, alert.end_chainage_m)
+        if geometry is not None:
+            features.append(feature(geometry, _alert_record(alert)))
+    return feature_collection(features), len(found) - len(features)
+
+
 @alerts.command("list")
 @click.option(
     "--status",
@@ -159,6 +208,13 @@ def _what(alert: Alert) -> str:
 @click.option(
     "--level", "levels", multiple=True, type=click.Choice(LEVELS), help="Only these levels."
 )
+@format_option("geojson")
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(path_type=Path, dir_okay=False),
+    help="Write GeoJSON to FILE.geojson (as --format geojson) instead of printing.",
+)
 @database_option
 @click.pass_context
 def list_command(
@@ -166,34 +222,61 @@ def list_command(
     status: str,
     line: str | None,
     levels: tuple[str, ...],
+    output_format: str,
+    output: Path | None,
 ) -> None:
     """List alerts, most severe first, then by line, track and chainage; and how many runs
-    are waiting for their alerts to be evaluated."""
+    are waiting for their alerts to be evaluated (with --format json or geojson: on standard
+    error).
+
+    --format geojson (or -o FILE.geojson): each alert over its stretch, placed by the masts'
+    coordinates; alerts beyond the masts with coordinates are left out (said on standard
+    error)."""
+    from catenary.geojson import geojson_text, write_geojson
     from catenary.maintenance.alerts import list_alerts
     from catenary.storage.database import session_scope
     from catenary.storage.runs import pending_runs
 
+    if output is not None:
+        if output.suffix.lower() != ".geojson":
+            raise UserError(f"{output}: the output's suffix must be .geojson")
+        output_format = "geojson"
     with app_of(ctx).database() as engine, session_scope(engine, read_only=True) as session:
         found = list_alerts(session, status=status, line=line, levels=levels)
         pending = pending_runs(session, line=line)
-        for alert in found:
-            section = (alert.details or {}).get("anchor_section")
-            click.echo(
-                printable(
-                    f"{alert.id:>6}  {alert.level:<8} {alert.kind:<9} {alert.status:<12} "
-                    f"{alert.track.line.code}/{alert.track.code}  {_where(alert)}"
-                    f"{f' (section {section})' if section else ''}, wire {alert.wire}: "
-                    f"{_what(alert)}; {(alert.details or {}).get('action', alert.rule)}"
+        if output_format == "json":
+            echo_json([_alert_record(alert) for alert in found])
+        elif output_format == "geojson":
+            collection, left_out = _alerts_geojson(session, found)
+            if output is None:
+                click.echo(geojson_text(collection), nl=False)
+            else:
+                write_geojson(output, collection)
+                click.echo(f"{len(collection['features'])} alert(s) written to {output}")
+            if left_out:
+                click.echo(f"{left_out} alert(s) left out: no mast coordinates there", err=True)
+        else:
+            for alert in found:
+                section = (alert.details or {}).get("anchor_section")
+                click.echo(
+                    printable(
+                        f"{alert.id:>6}  {alert.level:<8} {alert.kind:<9} {alert.status:<12} "
+                        f"{alert.track.line.code}/{alert.track.code}  {_where(alert)}"
+                        f"{f' (section {section})' if section else ''}, wire {alert.wire}: "
+                        f"{_what(alert)}; {(alert.details or {}).get('action', alert.rule)}"
+                    )
                 )
-            )
-    click.echo(f"{len(found)} alert(s)")
+    machine = output_format != "text"
+    if not machine:
+        click.echo(f"{len(found)} alert(s)")
     if pending:
         where = "" if line is None else f" on line {line}"
         click.echo(
             printable(
                 f"{len(pending)} run(s){where} not yet evaluated for alerts "
                 f"({_ids(pending)}): catenary alerts evaluate --all"
-            )
+            ),
+            err=machine,
         )
 
 

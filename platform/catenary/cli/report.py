@@ -73,7 +73,8 @@ def _list(registry: PluginRegistry) -> None:
     "-o",
     "--output",
     type=click.Path(path_type=Path, dir_okay=False),
-    help="The file to write; its suffix chooses the format (.html, .csv, .parquet).",
+    help="The file to write; its suffix chooses the format (.html, .csv, .xlsx, .parquet; "
+    "'-': CSV to standard output).",
 )
 @click.option("--list", "list_reporters", is_flag=True, help="List the reporters and exit.")
 @database_option
@@ -96,8 +97,8 @@ def report(
 
     \b
     catenary report run RUN -o run.html
-    catenary report maintenance --line L -o plan.html|plan.csv
-    catenary report linear-events [--line L] [--run RUN|--latest] -o events.csv|.parquet
+    catenary report maintenance --line L -o plan.html|plan.csv|plan.xlsx
+    catenary report linear-events [--line L] [--run RUN|--latest] -o events.csv|.xlsx|-
     catenary report repeatability RUN_A RUN_B -o repeat.html|histogram.csv
     """
     from catenary.maintenance.reports import report_request
@@ -130,4 +131,6 @@ def report(
     )
     with registry.boundary("reporter", name):
         written = reporter.write(request, output)
-    click.echo(f"{name} report written to {written}")
+    to_stdout = str(written) == "-"  # the CSV is standard output: the message goes aside
+    where = "standard output" if to_stdout else str(written)
+    click.echo(f"{name} report written to {where}", err=to_stdout)

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from catenary.cli.app import Interruptions, app_of, interrupted_exit_code
+from catenary.cli.listing import echo_json, format_option, utc_text
 from catenary.domain import CODE_LENGTH
 from catenary.errors import UserError
 from catenary.plugins import database_option
@@ -17,8 +18,9 @@ from catenary.text import identifier_option, printable
 
 if TYPE_CHECKING:
     from catenary.domain import RunHeader
+    from catenary.storage.models import Run
 
-__all__ = ["compare", "export", "process"]
+__all__ = ["compare", "export", "process", "runs"]
 
 
 @click.command("process")
@@ -187,17 +189,22 @@ def _interrupted_once_stored(
     "--output",
     required=True,
     type=click.Path(path_type=Path, dir_okay=False),
-    help="FILE.csv or FILE.parquet.",
+    help="FILE.csv, FILE.xlsx, FILE.parquet, FILE.geojson (spans, with mast coordinates) or "
+    "'-' (CSV to standard output).",
 )
 @database_option
 @click.pass_context
 def export(ctx: click.Context, run_reference: str, what: str, output: Path) -> None:
-    """Export a run's samples or spans as CSV or Parquet (RUN: a run id, UUID or its prefix,
-    or 'latest')."""
+    """Export a run's samples or spans as CSV, .xlsx or Parquet, or its spans as GeoJSON
+    (RUN: a run id, UUID or its prefix, or 'latest')."""
     from catenary.measurement.export import export_run
 
-    written, run_id = export_run(app_of(ctx).settings, run_reference, what, output)
-    click.echo(f"{written} {what} of run {run_id} written to {output}")
+    done = export_run(app_of(ctx).settings, run_reference, what, output)
+    to_stdout = str(output) == "-"  # the CSV is standard output: the message goes aside
+    where = "standard output" if to_stdout else str(output)
+    click.echo(f"{done.rows} {what} of run {done.run_id} written to {where}", err=to_stdout)
+    if done.left_out:
+        click.echo(f"{done.left_out} {what} left out: their masts have no coordinates", err=True)
 
 
 @click.command("compare")
@@ -230,3 +237,89 @@ def compare(ctx: click.Context, run_a: str, run_b: str) -> None:
     click.echo(f"run {a.id} against run {b.id}")
     for text in comparison.summary_lines():
         click.echo(text)
+
+
+@click.group("runs")
+def runs() -> None:
+    """The stored runs."""
+
+
+def _run_record(run: Run) -> dict[str, Any]:
+    """A run as ``catenary runs list`` shows it (its latest processing's, if any)."""
+    processing = run.processing
+    return {
+        "id": run.id,
+        "uuid": run.uuid,
+        "line": run.line.code,
+        "track": run.track.code if run.track else None,
+        "direction": run.direction,
+        "vehicle": run.vehicle.name,
+        "started_at": utc_text(run.started_at),
+        "scans": run.scans,
+        "status": run.status,
+        "processing_uuid": processing.uuid if processing else None,
+        "processed_at": utc_text(processing.processed_at) if processing else None,
+        "length_m": processing.length_m if processing else None,
+    }
+
+
+@runs.command("list")
+@click.option(
+    "--line", metavar="CODE", help="Only this line.", callback=identifier_option(CODE_LENGTH)
+)
+@click.option(
+    "--track",
+    metavar="CODE",
+    help="Only this track (with --line).",
+    callback=identifier_option(CODE_LENGTH),
+)
+@format_option()
+@database_option
+@click.pass_context
+def list_runs(ctx: click.Context, line: str | None, track: str | None, output_format: str) -> None:
+    """List the stored runs, oldest first: id, UUID, line, track, direction, vehicle, start,
+    scans, status, and the latest processing's UUID, time and length."""
+    from sqlalchemy import select
+    from sqlalchemy.orm import selectinload
+
+    from catenary.storage.database import session_scope
+    from catenary.storage.models import Line, Run, Track
+
+    if track is not None and line is None:
+        raise click.UsageError("--track needs --line")
+    query = (
+        select(Run)
+        .join(Line, Run.line_id == Line.id)
+        .outerjoin(Track, Run.track_id == Track.id)
+        .options(
+            selectinload(Run.line),
+            selectinload(Run.track),
+            selectinload(Run.vehicle),
+            selectinload(Run.processing),
+        )
+        .order_by(Run.id)
+    )
+    if line is not None:
+        query = query.where(Line.code == line)
+    if track is not None:
+        query = query.where(Track.code == track)
+    with app_of(ctx).database() as engine, session_scope(engine, read_only=True) as session:
+        records = [_run_record(run) for run in session.scalars(query)]
+    if output_format == "json":
+        echo_json(records)
+        return
+
+    def minute(text: str | None) -> str:
+        return "-" if text is None else f"{text[:16].replace('T', ' ')} UTC"
+
+    for r in records:
+        length = "-" if r["length_m"] is None else f"{r['length_m']:.1f} m"
+        click.echo(
+            printable(
+                f"{r['id']:>6}  {r['uuid'][:8]}  {r['line']}/{r['track'] or '-'}  "
+                f"{r['direction']:<10} {r['vehicle']}  {minute(r['started_at'])}  "
+                f"{r['scans']} scans  {r['status']:<10} {length}  processing "
+                f"{(r['processing_uuid'] or '-')[:8]} at {minute(r['processed_at'])}"
+            )
+        )
+    click.echo(f"{len(records)} run(s)")

@@ -6,11 +6,12 @@ from __future__ import annotations
 import logging
 import sys
 from datetime import datetime
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from catenary.cli.app import app_of
+from catenary.cli.listing import echo_json, format_option
 from catenary.domain import NAME_LENGTH
 from catenary.plugins import database_option
 from catenary.text import identifier_option, printable
@@ -87,10 +88,33 @@ def _status_line(row: AlertNotification, configured: set[str]) -> str:
     )
 
 
+def _status_record(row: AlertNotification, configured: set[str]) -> dict[str, Any]:
+    """A notification not sent, as ``--format json`` shows it."""
+    alert = row.alert
+    return {
+        "id": row.id,
+        "alert_id": alert.id,
+        "level": alert.level,
+        "line": alert.track.line.code,
+        "track": alert.track.code,
+        "mast_from": alert.mast_from,
+        "mast_to": alert.mast_to,
+        "wire": alert.wire,
+        "channel": row.notifier,
+        "channel_configured": row.notifier in configured,
+        "status": row.status,
+        "attempts": row.attempts,
+        "next_attempt_at": row.next_attempt_at,
+        "last_error": row.last_error,
+        "updated_at": row.updated_at,
+    }
+
+
 @notify.command("status")
+@format_option()
 @database_option
 @click.pass_context
-def status_command(ctx: click.Context) -> None:
+def status_command(ctx: click.Context, output_format: str) -> None:
     """List the notifications not sent (pending or failed), with their last error."""
     from catenary.maintenance.notifications import notification_config, undelivered
     from catenary.storage.database import open_database, session_scope
@@ -102,6 +126,9 @@ def status_command(ctx: click.Context) -> None:
         session_scope(engine, read_only=True) as session,
     ):
         rows = undelivered(session)
+        if output_format == "json":
+            echo_json([_status_record(row, configured) for row in rows])
+            return
         lines = [_status_line(row, configured) for row in rows]
     if not lines:
         click.echo("every notification is sent")

@@ -17,6 +17,8 @@ scan and wire) and read back in row groups, so neither side holds a whole run in
 
 from __future__ import annotations
 
+import os
+import sys
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
@@ -31,7 +33,7 @@ import pyarrow.parquet as pq
 from catenary.arrays import BoolArray
 from catenary.errors import FormatError, UserError
 from catenary.measurement.compare import RunProfile
-from catenary.measurement.spreadsheet import for_people
+from catenary.measurement.spreadsheet import SHEET_ROWS, XlsxTableWriter, for_people
 from catenary.storage.models import Run
 from catenary.storage.runs import latest_processing
 from catenary.storage.store import Store, check_key
@@ -41,16 +43,25 @@ __all__ = [
     "EXPORT_COLUMNS",
     "FILE_COLUMNS",
     "SAMPLES_SCHEMA",
+    "STDOUT",
+    "TABLE_SUFFIXES",
     "TRUST_COLUMNS",
     "SampleWriter",
     "StoredSamples",
     "export_table",
+    "one_of",
     "read_sample_batches",
     "run_profile",
     "run_samples",
+    "sample_rows",
     "trusted",
     "with_wire_positions",
 ]
+
+TABLE_SUFFIXES = (".csv", ".xlsx", ".parquet")
+"""The suffixes of the files a table is exported to (``export_table``)."""
+STDOUT = "-"
+"""The output that is standard output (CSV)."""
 
 FORMAT = "catenary-samples"
 FORMAT_VERSION = 2
@@ -233,18 +244,25 @@ def trusted(batch: Mapping[str, np.ndarray[Any, Any]]) -> BoolArray:
     return np.asarray(~batch["vehicle_fault"] & ~batch["selection_uncertain"], dtype=bool)
 
 
-def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -> int:
-    """Write tables to ``output`` as CSV or Parquet (by its suffix); returns the rows written.
+def export_table(
+    batches: Iterator[pa.Table], schema: pa.Schema, output: Path, total: int | None = None
+) -> int:
+    """Write tables to ``output`` as CSV, ``.xlsx`` or Parquet (by its suffix; ``-``: CSV to
+    standard output); returns the rows written.
 
     Written to a temporary file beside ``output`` and renamed at the end: an interrupted
     export leaves no partial file; a write that fails (a full disk) is a ``UserError`` naming
-    ``output``. CSV is for people: numbers rounded to what they mean, text
+    ``output``. CSV and ``.xlsx`` are for people: numbers rounded to what they mean, text
     cells that a spreadsheet would evaluate neutralised, control characters escaped
-    (``for_people``).
+    (``for_people``). More rows than an ``.xlsx`` sheet holds is a ``UserError`` naming
+    ``output`` and the count, and writes nothing: before any row is written when the caller
+    knows the ``total``, else on the batch that overflows.
     """
+    if str(output) == STDOUT:
+        return _csv_to_stdout(batches, schema)
     suffix = output.suffix.lower()
-    if suffix not in (".csv", ".parquet"):
-        raise UserError(f"{output}: the output's suffix must be .csv or .parquet")
+    if suffix not in TABLE_SUFFIXES:
+        raise UserError(f"{output}: the output's suffix must be {one_of(TABLE_SUFFIXES)}")
     partial = output.with_name(f".{output.name}.partial")
     rows = 0
     try:
@@ -252,6 +270,17 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
             with pq.ParquetWriter(partial, schema) as writer:
                 for table in batches:
                     writer.write_table(table)
+                    rows += table.num_rows
+        elif suffix == ".xlsx":
+            if total is not None:
+                _check_sheet_rows(output, total)
+            with XlsxTableWriter(partial, schema) as sheet:
+                for table in batches:
+                    if 1 + rows + table.num_rows > SHEET_ROWS:
+                        _check_sheet_rows(
+                            output, rows + table.num_rows + sum(t.num_rows for t in batches)
+                        )
+                    sheet.write_table(table)
                     rows += table.num_rows
         else:
             with pa_csv.CSVWriter(partial, schema) as writer:
@@ -264,6 +293,46 @@ def export_table(batches: Iterator[pa.Table], schema: pa.Schema, output: Path) -
         if isinstance(exc, OSError):  # a full disk, a folder that may not be written
             raise UserError(f"{output}: cannot write ({_detail(exc)})") from None
         raise
+    return rows
+
+
+def _check_sheet_rows(output: Path, total: int) -> None:
+    """Refuse ``total`` rows to an ``.xlsx`` sheet ``output`` if they do not fit under its
+    header."""
+    if 1 + total > SHEET_ROWS:
+        raise UserError(
+            f"{output}: {total} rows is more than a sheet holds "
+            f"({SHEET_ROWS - 1} below the header); write .csv or .parquet"
+        )
+
+
+def sample_rows(path: SamplesSource) -> int:
+    """The rows of a samples file (from its footer, without reading them)."""
+    return int(_open(path).metadata.num_rows)
+
+
+def one_of(suffixes: tuple[str, ...]) -> str:
+    """``suffixes`` as a sentence says them: ".a, .b or .c"."""
+    return " or ".join([", ".join(suffixes[:-1]), suffixes[-1]] if len(suffixes) > 1 else suffixes)
+
+
+def _csv_to_stdout(batches: Iterator[pa.Table], schema: pa.Schema) -> int:
+    """Write tables as CSV for people to standard output; returns the rows written. A reader
+    that stops early (``| head``) is a ``UserError`` saying how many rows were written."""
+    sys.stdout.flush()
+    rows = 0
+    try:
+        with pa_csv.CSVWriter(sys.stdout.buffer, schema) as writer:
+            for table in batches:
+                writer.write_table(for_people(table))
+                rows += table.num_rows
+        sys.stdout.buffer.flush()
+    except BrokenPipeError:
+        # nothing more reaches the reader, Python's own flush at exit included
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        raise UserError(
+            f"standard output closed by its reader: {rows} rows or fewer written"
+        ) from None
     return rows
 
 
