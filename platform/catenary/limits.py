@@ -17,6 +17,31 @@ files (layout in the built-in presets, ``catenary_wiretypes.PRESETS_PATH``)::
     inclusive = true                 # met at the value (default) or only beyond it
     wire_types = ["AC-120"]          # optional: default all wire types
 
+A policy also holds **geometry rules**, beside the wear rules (a policy needs at least one rule
+of either kind)::
+
+    [[policies.db-ril-997.geometry]]
+    check = "stagger"                # see GEOMETRY_CHECKS
+    level = "urgent"
+    action = "re-register the wire"
+    max_abs_mm = 300.0               # stagger: |stagger| at most this (the pantograph's range)
+    min_speed_kmh = 200.0            # optional: only where the line speed is above this
+    max_speed_kmh = 400.0            # optional: only where it is at most this
+
+``check`` is one of
+
+- ``height``: the span's contact wire height within ``min_mm`` and/or ``max_mm``;
+- ``height_gradient``: the height change between the span's two masts (the medians within
+  1 m of each) over the span's length at most ``max_per_mille`` (1/1000);
+- ``stagger``: the span's stagger within ``max_abs_mm`` either side of the track centre;
+- ``design_stagger``, ``design_height``: the wire's median stagger (height) within 1 m of the
+  span's first mast within ``tolerance_mm`` of the register's ``design_stagger_mm``
+  (``design_height_mm``): a condition of the mast, shown on the span that starts there.
+
+The line speed of a span is the register's ``line_speed_kmh`` at its first mast; a rule with a
+speed band does not apply to spans without one. ``GeometryRule.limit_mm`` etc. say what the
+alert engine compares.
+
 ``thresholds(wire, policy)`` expresses every rule that applies to a wire type as residual
 thickness, worn fraction and wear width together. A user's config names a policy in an
 optional ``[limits]`` section: ``policy = "<name>"`` and, for their own file instead of the
@@ -51,7 +76,26 @@ _RULE_KEYS = {
     "inclusive",
     "wire_types",
 }
-_POLICY_KEYS = {"description", "source", "rules"}
+_POLICY_KEYS = {"description", "source", "rules", "geometry"}
+
+GEOMETRY_CHECKS = ("height", "height_gradient", "stagger", "design_stagger", "design_height")
+"""What a geometry rule checks (the module docstring)."""
+
+_GEOMETRY_LIMITS = {
+    "height": ("min_mm", "max_mm"),
+    "height_gradient": ("max_per_mille",),
+    "stagger": ("max_abs_mm",),
+    "design_stagger": ("tolerance_mm",),
+    "design_height": ("tolerance_mm",),
+}
+_GEOMETRY_KEYS = {
+    "check",
+    "level",
+    "action",
+    "min_speed_kmh",
+    "max_speed_kmh",
+    *(key for keys in _GEOMETRY_LIMITS.values() for key in keys),
+}
 _CONFIG_KEYS = {"policy", "file"}
 
 
@@ -102,13 +146,69 @@ class LimitRule:
 
 
 @dataclass(frozen=True)
+class GeometryRule:
+    """A geometry rule of a policy (``check`` and its limits: the module docstring) [mm,
+    1/1000, km/h]; NaN where a limit is not given. It applies where the line speed lies in
+    ``(min_speed_kmh, max_speed_kmh]`` (NaN: no bound, and no line speed needed)."""
+
+    check: str
+    level: str
+    action: str = ""
+    min_mm: float = math.nan
+    max_mm: float = math.nan
+    max_per_mille: float = math.nan
+    max_abs_mm: float = math.nan
+    tolerance_mm: float = math.nan
+    min_speed_kmh: float = math.nan
+    max_speed_kmh: float = math.nan
+
+    def __post_init__(self) -> None:
+        if self.check not in GEOMETRY_CHECKS:
+            raise ValueError(f"check must be one of {', '.join(GEOMETRY_CHECKS)}")
+        if self.level not in LEVELS:
+            raise ValueError(f"level must be one of {', '.join(LEVELS)}, not {self.level!r}")
+        given = [k for k in _GEOMETRY_LIMITS[self.check] if math.isfinite(getattr(self, k))]
+        if not given:
+            raise ValueError(f"{self.check}: give {' or '.join(_GEOMETRY_LIMITS[self.check])}")
+
+    @property
+    def speed_band(self) -> bool:
+        return math.isfinite(self.min_speed_kmh) or math.isfinite(self.max_speed_kmh)
+
+    @property
+    def criterion(self) -> str:
+        """The rule as text, e.g. ``"|stagger| <= 300 mm (line speed > 200 km/h)"``."""
+        if self.check == "height":
+            parts = []
+            if math.isfinite(self.min_mm):
+                parts.append(f"height >= {self.min_mm:g} mm")
+            if math.isfinite(self.max_mm):
+                parts.append(f"height <= {self.max_mm:g} mm")
+            text = " and ".join(parts)
+        elif self.check == "height_gradient":
+            text = f"|height gradient| <= {self.max_per_mille:g} per mille"
+        elif self.check == "stagger":
+            text = f"|stagger| <= {self.max_abs_mm:g} mm"
+        else:
+            what = self.check.removeprefix("design_")
+            text = f"{what} at the mast within {self.tolerance_mm:g} mm of design"
+        band = []
+        if math.isfinite(self.min_speed_kmh):
+            band.append(f"> {self.min_speed_kmh:g} km/h")
+        if math.isfinite(self.max_speed_kmh):
+            band.append(f"<= {self.max_speed_kmh:g} km/h")
+        return text + (f" (line speed {' and '.join(band)})" if band else "")
+
+
+@dataclass(frozen=True)
 class LimitPolicy:
-    """An operator's wear limits: a named, sourced list of rules."""
+    """An operator's limits: a named, sourced list of wear rules and of geometry rules."""
 
     name: str
     description: str
     source: str
     rules: tuple[LimitRule, ...]
+    geometry: tuple[GeometryRule, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -202,6 +302,50 @@ def _parse_rule(raw: Any, where: str) -> LimitRule:
     )
 
 
+def _parse_geometry(raw: Any, where: str) -> GeometryRule:
+    if not isinstance(raw, dict):
+        raise UserError(f"{where}: must be a table, not {raw!r}")
+    unknown = sorted(set(raw) - _GEOMETRY_KEYS)
+    if unknown:
+        raise UserError(
+            f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(_GEOMETRY_KEYS))})"
+        )
+    for key in ("check", "level"):
+        if key not in raw:
+            raise UserError(f"{where}: missing key {key!r}")
+    check, level = raw["check"], raw["level"]
+    if check not in GEOMETRY_CHECKS:
+        raise UserError(
+            f"{where}: check must be one of {', '.join(GEOMETRY_CHECKS)}, not {check!r}"
+        )
+    if level not in LEVELS:
+        raise UserError(f"{where}: level must be one of {', '.join(LEVELS)}, not {level!r}")
+    allowed = set(_GEOMETRY_LIMITS[check])
+    values: dict[str, float] = {}
+    for key in sorted(set(raw) & (_GEOMETRY_KEYS - {"check", "level", "action"})):
+        if key not in allowed and key not in ("min_speed_kmh", "max_speed_kmh"):
+            raise UserError(
+                f"{where}: {key} is not a limit of check {check!r} "
+                f"(its limits: {', '.join(_GEOMETRY_LIMITS[check])})"
+            )
+        value = _number(raw[key])
+        if value is None or not math.isfinite(value) or (value <= 0 and key != "min_speed_kmh"):
+            raise UserError(f"{where}: {key} must be a positive number, not {raw[key]!r}")
+        if value < 0:
+            raise UserError(f"{where}: {key} must be 0 or more, not {raw[key]!r}")
+        values[key] = value
+    if not allowed & set(values):
+        raise UserError(f"{where}: check {check!r} needs {' or '.join(sorted(allowed))}")
+    if values.get("min_mm", -math.inf) >= values.get("max_mm", math.inf):
+        raise UserError(f"{where}: min_mm must be below max_mm")
+    if values.get("min_speed_kmh", -math.inf) >= values.get("max_speed_kmh", math.inf):
+        raise UserError(f"{where}: min_speed_kmh must be below max_speed_kmh")
+    action = raw.get("action", "")
+    if not isinstance(action, str):
+        raise UserError(f"{where}: action must be a string, not {action!r}")
+    return GeometryRule(check=check, level=level, action=action, **values)
+
+
 def _parse_policy(name: str, raw: Any, origin: str) -> LimitPolicy:
     where = f"{origin}: policy {name!r}"
     if not isinstance(raw, dict):
@@ -217,15 +361,25 @@ def _parse_policy(name: str, raw: Any, origin: str) -> LimitPolicy:
         if not isinstance(value, str):
             raise UserError(f"{where}: {key} must be a string, not {value!r}")
         texts[key] = value
-    rules = raw.get("rules")
-    if not isinstance(rules, list) or not rules:
-        raise UserError(f"{where}: needs at least one [[policies.{name}.rules]] table")
+    rules, geometry = raw.get("rules", []), raw.get("geometry", [])
+    for key, value in (("rules", rules), ("geometry", geometry)):
+        if not isinstance(value, list):
+            raise UserError(f"{where}: {key} must be [[policies.{name}.{key}]] tables")
+    if not rules and not geometry:
+        raise UserError(
+            f"{where}: needs at least one [[policies.{name}.rules]] or "
+            f"[[policies.{name}.geometry]] table"
+        )
     return LimitPolicy(
         name=name,
         description=texts["description"],
         source=texts["source"],
         rules=tuple(
             _parse_rule(rule, f"{where} rule {number}") for number, rule in enumerate(rules, 1)
+        ),
+        geometry=tuple(
+            _parse_geometry(rule, f"{where} geometry rule {number}")
+            for number, rule in enumerate(geometry, 1)
         ),
     )
 
@@ -386,8 +540,10 @@ def thresholds(wire: WireType, policy: LimitPolicy) -> list[Threshold]:
 
 
 __all__ = [
+    "GEOMETRY_CHECKS",
     "LEVELS",
     "SCOPES",
+    "GeometryRule",
     "LimitPolicy",
     "LimitRule",
     "Threshold",

@@ -323,7 +323,7 @@ def _moment(text: str | None) -> datetime:
     required=True,
     metavar="KIND",
     help=f"What was done: {', '.join(MAINTENANCE_KINDS)} ({', '.join(REPAIR_KINDS)} resolve "
-    "the alerts on the stretch).",
+    "the alerts on the stretch, adjusted its geometry alerts).",
 )
 @click.option(
     "--by",

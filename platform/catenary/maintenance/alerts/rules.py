@@ -10,7 +10,7 @@ import numpy as np
 from catenary.arrays import BoolArray, FloatArray, IntArray, take
 from catenary.config import Settings
 from catenary.errors import UserError
-from catenary.limits import LimitPolicy, LimitRule, thresholds
+from catenary.limits import GeometryRule, LimitPolicy, LimitRule, thresholds
 from catenary.storage.models import NAME_LENGTH
 from catenary.wiretype import WireType
 
@@ -20,6 +20,7 @@ __all__ = [
     "SECTION",
     "Rule",
     "check_policy",
+    "geometry_rules_of",
     "horizon_days",
     "rules_of",
 ]
@@ -92,6 +93,11 @@ def rules_of(policy: LimitPolicy, wire_types: Sequence[WireType]) -> list[Rule]:
         Rule(n, rule, f"{policy.name}#{n}", thickness[n], fraction[n])
         for n, rule in enumerate(policy.rules, 1)
     ]
+
+
+def geometry_rules_of(policy: LimitPolicy) -> list[tuple[str, GeometryRule]]:
+    """The policy's geometry rules by their ``Alert.rule`` name, ``"policy#g<number>"``."""
+    return [(f"{policy.name}#g{n}", rule) for n, rule in enumerate(policy.geometry, 1)]
 
 
 def check_policy(policy: LimitPolicy, wire_types: Mapping[str, WireType]) -> None:
