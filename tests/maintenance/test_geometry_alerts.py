@@ -221,7 +221,7 @@ def test_the_height_gradient_is_the_rise_between_the_masts_over_the_span() -> No
     index = np.arange(4)
     checked = check(
         rule, geometry, masts, index, index, index, np.full(4, 50.0), np.ones(4),
-        np.ones(4, dtype=bool),
+        np.ones(4, dtype=bool), np.ones(4, dtype=bool),
     )  # fmt: skip
     # 3 per mille over 50 m allows 150 mm
     np.testing.assert_allclose(checked.value, np.array(rise) / 50.0, atol=1e-9)
@@ -234,7 +234,7 @@ def test_the_height_gradient_is_the_rise_between_the_masts_over_the_span() -> No
     )
     checked = check(
         banded, geometry, masts, index, index, index, np.full(4, 50.0), np.ones(4),
-        np.ones(4, dtype=bool),
+        np.ones(4, dtype=bool), np.ones(4, dtype=bool),
     )  # fmt: skip
     assert np.isnan(checked.limit[3]) and not checked.met()[3] and not checked.clear()[3]
     assert checked.met()[:2].all()
@@ -249,7 +249,8 @@ def test_height_and_stagger_ranges() -> None:
     )
     masts = MastGeometry(np.full(3, np.nan), np.full(3, np.nan), np.full(3, np.nan))
     index = np.arange(3)
-    args = (index, index, index, np.full(3, 50.0), np.ones(3), np.ones(3, dtype=bool))
+    ones = np.ones(3, dtype=bool)
+    args = (index, index, index, np.full(3, 50.0), np.ones(3), ones, ones)
     height = GeometryRule(check="height", level="urgent", min_mm=5000.0, max_mm=6500.0)
     checked = check(height, geometry, masts, *args)
     assert checked.met().tolist() == [True, True, False]
@@ -259,6 +260,9 @@ def test_height_and_stagger_ranges() -> None:
     checked = check(stagger, geometry, masts, *args)
     assert checked.met().tolist() == [True, False, False]
     np.testing.assert_allclose(checked.value, [405.0, 250.0, 300.0])
+    # a wire out of running at the span's last mast (it leaves running within it): not checked
+    checked = check(stagger, geometry, masts, *args[:-1], np.array([False, True, True]))
+    assert np.isnan(checked.limit[0]) and not checked.met().any()
 
 
 def test_a_wire_lifted_out_of_running_at_a_mast_is_not_checked_there() -> None:
@@ -280,14 +284,14 @@ def test_the_design_check_takes_the_wire_nearest_design_where_two_run() -> None:
     zero = np.zeros(2, dtype=np.int64)
     checked = check(
         rule, geometry, masts, np.arange(2), zero, zero, np.full(2, 50.0), np.ones(2),
-        np.ones(2, dtype=bool),
+        np.ones(2, dtype=bool), np.zeros(2, dtype=bool),
     )  # fmt: skip
     assert np.isnan(checked.value[0]) and checked.value[1] == pytest.approx(20.0)
     assert not checked.met().any()
     # a run the other way round: its staggers' sign is undone
     checked = check(
         rule, geometry, masts, np.arange(2), zero, zero, np.full(2, 50.0), -np.ones(2),
-        np.ones(2, dtype=bool),
+        np.ones(2, dtype=bool), np.zeros(2, dtype=bool),
     )  # fmt: skip
     assert checked.value[0] == pytest.approx(20.0)
 

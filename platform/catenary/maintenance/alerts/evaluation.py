@@ -309,7 +309,8 @@ class _Track:
         data, rows = self.data, self.data.rows
         if not self.geometry or units.count == 0:
             return
-        is_running = running(rows.run_id, rows.mast_from, rows.span, data.geometry.height_start_mm)
+        at_start = running(rows.run_id, rows.mast_from, rows.span, data.geometry.height_start_mm)
+        at_end = running(rows.run_id, rows.mast_to, rows.span, data.geometry.height_end_mm)
         row = units.row
         mast_from = rows.mast_from[row]
         length_m = rows.end_m[row] - rows.start_m[row]
@@ -323,7 +324,8 @@ class _Track:
                 mast_from,
                 length_m,
                 rows.direction[row],
-                is_running,
+                at_start,
+                at_end,
             )
             self._cycle(
                 "geometry",

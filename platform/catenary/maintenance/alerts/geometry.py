@@ -1,12 +1,13 @@
 """Geometry rules on a track's span rows: what each rule compares and whether it is met.
 
 A rule is checked on each history's latest row (``catenary.maintenance.alerts.trackdata``),
-for the **running wires** at the span's first mast only: those within ``RUNNING_LIFT_MM`` of
-the lowest wire there (at an overlap the wire out of running is lifted towards its anchor, and
-its stagger lies further out). The register gives one design value per mast: where two wires
-run at a mast (an overlap's middle mast), the design checks take the wire nearest it. A row
-whose values or register entries the rule needs are missing is not evaluated (its alerts are
-left as they are). Staggers are compared in the register's frame: positive to the right
+for the **running wires** only: those within ``RUNNING_LIFT_MM`` of the lowest wire at the
+span's first mast (the design checks), and at its last mast too where the wire was measured
+there (the others: at an overlap the wire leaving running rises towards its anchor within the
+span, and its stagger lies further out). The register gives one design value per mast: where
+two wires run at a mast (an overlap's middle mast), the design checks take the wire nearest
+it. A row whose values or register entries the rule needs are missing is not evaluated (its
+alerts are left as they are). Staggers are compared in the register's frame: positive to the right
 looking towards increasing chainage (a run the other way has its sign undone).
 """
 
@@ -133,15 +134,18 @@ def check(
     mast_from: IntArray,
     length_m: FloatArray,
     direction: FloatArray,
-    is_running: BoolArray,
+    running_start: BoolArray,
+    running_end: BoolArray,
 ) -> Checked:
     """``rule`` on units ``(k,)`` whose latest rows are ``row`` (into ``geometry`` and
-    ``is_running``); ``run_id``, ``mast_from`` (-1: none), ``length_m`` and ``direction``
+    ``running_start``, ``running_end``: ``running`` at the rows' first and last masts);
+    ``run_id``, ``mast_from`` (-1: none), ``length_m`` and ``direction``
     (+1, -1) are the units' run, first mast, span length [m] and run direction."""
     g = geometry
     nan = np.full(row.shape, np.nan)
     speed = take(masts.line_speed_kmh, mast_from, np.nan)
-    applies = _band(rule, speed) & is_running[row]
+    design_check = rule.check in ("design_stagger", "design_height")
+    applies = _band(rule, speed) & running_start[row] & (design_check | running_end[row])
     measured = design = nan
     if rule.check == "height":
         low, high = g.height_min_mm[row], g.height_max_mm[row]
