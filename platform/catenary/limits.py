@@ -45,7 +45,9 @@ alert engine compares.
 ``thresholds(wire, policy)`` expresses every rule that applies to a wire type as residual
 thickness, worn fraction and wear width together. A user's config names a policy in an
 optional ``[limits]`` section: ``policy = "<name>"`` and, for their own file instead of the
-presets, ``file = "<path>"`` (``policy_from_config``). The alert engine uses these later.
+presets, ``file = "<path>"`` (``policy_from_config``). Without one, alerts are evaluated with
+each wire type's own standard limit (``standard_policy``: its profile's published minimum
+residual thickness, else the manufacturers' 30 % rule).
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ from typing import Any
 
 from catenary.config import Settings
 from catenary.errors import UserError
-from catenary.wiretype import ProfileRangeError, WireType
+from catenary.wiretype import STANDARD_WORN_FRACTION, ProfileRangeError, WireType
 
 LEVELS = ("plan", "urgent", "critical")
 """Alert levels, least to most severe: schedule work, act before the next run, end of life."""
@@ -470,17 +472,61 @@ def policy_from_config(
     return select_policy(policies, name, origin=origin)
 
 
+STANDARD_POLICY = "standard-limits"
+"""The name of the policy evaluated without one configured (``standard_policy``)."""
+
+
+def standard_policy(wire_types: Mapping[str, WireType]) -> LimitPolicy:
+    """Each wire type's own standard limit (``WireType.standard_limit``): a critical local
+    rule at its published minimum residual thickness, or at the manufacturers' 30 % loss of
+    cross-section for the wire types with none published."""
+    published = sorted(n for n, w in wire_types.items() if w.published_min_mm is not None)
+    others = tuple(sorted(n for n in wire_types if n not in published))
+    rules = [
+        LimitRule(
+            level="critical",
+            scope="local",
+            residual_thickness_mm=wire_types[name].published_min_mm,
+            wire_types=(name,),
+            action="the profile's published minimum residual thickness reached",
+        )
+        for name in published
+    ]
+    if others:
+        rules.append(
+            LimitRule(
+                level="critical",
+                scope="local",
+                worn_fraction=STANDARD_WORN_FRACTION,
+                wire_types=others,
+                action="the manufacturers' allowable wear reached (30 % loss of cross-section)",
+            )
+        )
+    return LimitPolicy(
+        name=STANDARD_POLICY,
+        description=(
+            "each wire type's standard limit: its profile's published minimum residual "
+            "thickness, else the manufacturers' 30 % loss of cross-section"
+        ),
+        source="the wire types' profiles; reference/wire-profiles.md, 'Wear limits in use'",
+        rules=tuple(rules),
+    )
+
+
 def choose_policy(
     settings: Settings,
     presets: Mapping[str, LimitPolicy],
     name: str | None = None,
     policy_file: Path | None = None,
+    *,
+    wire_types: Mapping[str, WireType] | None = None,
 ) -> LimitPolicy | None:
     """The policy a command is told to use, or None without one.
 
     ``name`` (``--policy``) picks one of ``policy_file``'s policies (``--policy-file``; a file
     of a single policy needs no name), else of the ``presets``; with neither, the config's
-    ``[limits]`` section (``policy_from_config``) decides.
+    ``[limits]`` section (``policy_from_config``) decides, and without one, given
+    ``wire_types``, their standard limits (``standard_policy``).
     """
     if policy_file is not None:
         policies = load_policies(policy_file)
@@ -494,9 +540,12 @@ def choose_policy(
         return select_policy(policies, name, origin=str(policy_file))
     if name is not None:
         return select_policy(presets, name, origin="wear-limit presets")
-    return policy_from_config(
+    configured = policy_from_config(
         settings.sections.get("limits"), presets=presets, config_path=settings.config_path
     )
+    if configured is None and wire_types:
+        return standard_policy(wire_types)
+    return configured
 
 
 def thresholds(wire: WireType, policy: LimitPolicy) -> list[Threshold]:
@@ -543,6 +592,7 @@ __all__ = [
     "GEOMETRY_CHECKS",
     "LEVELS",
     "SCOPES",
+    "STANDARD_POLICY",
     "GeometryRule",
     "LimitPolicy",
     "LimitRule",
@@ -552,5 +602,6 @@ __all__ = [
     "parse_policies",
     "policy_from_config",
     "select_policy",
+    "standard_policy",
     "thresholds",
 ]

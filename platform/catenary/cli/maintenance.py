@@ -36,9 +36,10 @@ __all__ = ["alerts", "maintenance"]
 
 def _policy(app: CommandContext, name: str | None, policy_file: Path | None) -> LimitPolicy:
     """The policy named on the command line (a preset, or one of ``policy_file``), else the
-    config's ``[limits]``."""
+    config's ``[limits]``, else the wire types' standard limits."""
     presets = app.registry.limit_policies()
-    policy = choose_policy(app.settings, presets, name, policy_file)
+    wire_types = app.registry.wire_types()
+    policy = choose_policy(app.settings, presets, name, policy_file, wire_types=wire_types)
     if policy is None:
         raise UserError(
             'no wear-limit policy: set [limits] policy = "NAME" in the config, or give --policy '

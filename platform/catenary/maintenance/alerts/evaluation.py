@@ -23,7 +23,7 @@ from sqlalchemy.orm import Session, aliased
 from catenary.arrays import BoolArray, FloatArray, IntArray
 from catenary.config import Settings
 from catenary.errors import UserError, one_line
-from catenary.limits import LEVELS, GeometryRule, LimitPolicy, choose_policy
+from catenary.limits import LEVELS, STANDARD_POLICY, GeometryRule, LimitPolicy, choose_policy
 from catenary.maintenance.forecast import (
     CONFIDENCE,
     ReachTimes,
@@ -729,7 +729,7 @@ def evaluate_all(
     (``[maintenance]``) at ``now``, a track at a time with the new alerts' notifications
     queued (``evaluate_tracks``): the scheduler's job. None without a policy. Announce the new
     alerts once it returns (``announce_alerts``)."""
-    policy = choose_policy(settings, registry.limit_policies())
+    policy = choose_policy(settings, registry.limit_policies(), wire_types=registry.wire_types())
     if policy is None:
         return None
     return evaluate_tracks(
@@ -756,10 +756,11 @@ class RunAlerting:
 def run_alerting(
     settings: Settings, registry: PluginRegistry, policy: LimitPolicy | None = None
 ) -> RunAlerting:
-    """The alerting of the runs a command stores: ``policy``, else the config's ``[limits]``;
-    raises ``UserError`` for a limit a wire type cannot reach, before anything is written."""
-    policy = policy or choose_policy(settings, registry.limit_policies())
+    """The alerting of the runs a command stores: ``policy``, else the config's ``[limits]``,
+    else the wire types' standard limits (``standard_policy``); raises ``UserError`` for a
+    limit a wire type cannot reach, before anything is written."""
     wire_types = registry.wire_types()
+    policy = policy or choose_policy(settings, registry.limit_policies(), wire_types=wire_types)
     if policy is not None:
         check_policy(policy, wire_types)
     return RunAlerting(policy, wire_types, horizon_days(settings))
@@ -795,7 +796,14 @@ def run_alerts_lines(result: Evaluation | None) -> list[str]:
         return ["alerts     not evaluated: no wear-limit policy ([limits] policy in the config)"]
     if result.failed:
         return ["alerts     not evaluated"]
+    standard = (
+        ["           no [limits] policy in the config: each wire type's standard limit "
+         "(catenary wire-types NAME)"]
+        if result.policy == STANDARD_POLICY
+        else []
+    )  # fmt: skip
     return [
         f"alerts     {result.summary()} (policy {result.policy})",
+        *standard,
         *(f"           {note}" for note in result.notes),
     ]
