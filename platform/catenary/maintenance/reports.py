@@ -28,13 +28,11 @@ def report_request(
     options: Mapping[str, str] | None = None,
 ) -> ReportRequest:
     """The request a reporter's ``write`` takes; ``policy`` names a preset (default: the
-    config's ``[limits]``, else the wire types' standard limits)."""
+    config's ``[limits]``)."""
     return ReportRequest(
         settings=settings,
         registry=registry,
-        policy=choose_policy(
-            settings, registry.limit_policies(), policy, wire_types=registry.wire_types()
-        ),
+        policy=choose_policy(settings, registry.limit_policies(), policy),
         runs=tuple(runs),
         line=line,
         track=track,

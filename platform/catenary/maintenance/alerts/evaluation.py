@@ -727,7 +727,8 @@ def evaluate_all(
 ) -> Evaluation | None:
     """Every span of the fleet with the configured policy (``[limits]``) and horizon
     (``[maintenance]``) at ``now``, a track at a time with the new alerts' notifications
-    queued (``evaluate_tracks``): the scheduler's job. None without a policy. Announce the new
+    queued (``evaluate_tracks``): the scheduler's job. None without a policy (no ``[limits]``
+    and no wire types for the standard limits). Announce the new
     alerts once it returns (``announce_alerts``)."""
     policy = choose_policy(settings, registry.limit_policies(), wire_types=registry.wire_types())
     if policy is None:
