@@ -153,6 +153,9 @@ def test_a_design_stagger_off_by_150_mm_raises_that_masts_alert_and_no_other(
         assert alert.details["check"] == "design_stagger"
         assert alert.span_measurement is not None
         assert alert.span_measurement.mast_from == wrong  # shown on the span that starts there
+    listed = invoke(database_url, config, "alerts", "list").output.splitlines()
+    assert listed[-1] == "1 alert(s)"
+    assert f"design_stagger {alert.value:.1f} mm, limit 100.0 mm (at the mast" in listed[0]
 
     # the register set right and the run processed again: back within tolerance, resolved
     result = process(long_run, long_run.masts, database_url, config, "--replace")
@@ -326,3 +329,62 @@ def test_a_bad_geometry_rule_is_one_line_naming_it(rule: str, message: str) -> N
     assert "\n" not in text
     assert text.startswith("my.toml: policy 'p' geometry rule 1: ")
     assert message in text
+
+
+# --- line speeds from the configuration -----------------------------------------------------
+
+HIGH_SPEED_POLICY = """
+[policies.fast]
+[[policies.fast.geometry]]
+check = "stagger"
+level = "urgent"
+max_abs_mm = 300.0
+min_speed_kmh = 200.0
+"""
+
+
+def test_a_lines_speed_in_the_config_chooses_the_speed_banded_rules(
+    long_run: SmallRun, engine: Engine, database_url: str, tmp_path: Path
+) -> None:
+    (tmp_path / "fast.toml").write_text(HIGH_SPEED_POLICY)
+    config = tmp_path / "config.toml"
+    limits = '[limits]\nfile = "fast.toml"\n'
+    config.write_text(limits)  # no line speed at all: the banded rule is not evaluated
+    assert "0 new" in process(long_run, long_run.masts, database_url, config).output
+    config.write_text(limits + "[maintenance]\nline_speed_kmh = {demo-line = 160}\n")
+    replaced = process(long_run, long_run.masts, database_url, config, "--replace")
+    assert "0 new" in replaced.output
+    config.write_text(limits + "[maintenance]\nline_speed_kmh = {demo-line = 250}\n")
+    process(long_run, long_run.masts, database_url, config, "--replace")
+    with session_scope(engine) as session:
+        alerts = list(session.scalars(select(Alert)))
+        latest = max(session.scalars(select(SpanMeasurement.processing_id)))
+        spans = session.scalars(
+            select(SpanMeasurement).where(SpanMeasurement.processing_id == latest)
+        )
+        # one wire a span (no overlap): every span's wire runs
+        beyond = {
+            s.mast_from for s in spans if max(abs(s.stagger_min_mm), abs(s.stagger_max_mm)) > 300.0
+        }
+    assert beyond  # the simulated line staggers up to about ±400 mm
+    assert {a.mast_from for a in alerts} == beyond
+    assert all(a.details["line_speed_kmh"] == 250.0 for a in alerts)
+
+
+@pytest.mark.parametrize(
+    ("table", "message"),
+    [
+        ("line_speed_kmh = 160", "line_speed_kmh must be a table"),
+        ("line_speed_kmh = {L1 = -5}", "line_speed_kmh.L1 must be a speed from 0 to 1000 km/h"),
+        ("line_speed_kmh = {L1 = 'fast'}", "not 'fast'"),
+    ],
+)
+def test_a_bad_line_speed_table_is_one_line(table: str, message: str, tmp_path: Path) -> None:
+    config = tmp_path / "config.toml"
+    config.write_text(f"[maintenance]\n{table}\n")
+    result = CliRunner().invoke(
+        cli, ["--config", str(config), "--db", "sqlite://", "alerts", "evaluate", "--all"]
+    )
+    assert result.exit_code == 1
+    (line,) = result.output.strip().splitlines()
+    assert line.startswith(f"Error: {config}: [maintenance]: ") and message in line

@@ -6,7 +6,7 @@ from __future__ import annotations
 import hashlib
 from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from functools import partial
 from typing import TYPE_CHECKING, Any
@@ -59,6 +59,7 @@ from catenary.maintenance.alerts.rules import (
     check_policy,
     geometry_rules_of,
     horizon_days,
+    line_speeds,
     rules_of,
 )
 from catenary.maintenance.alerts.trackdata import (
@@ -251,9 +252,10 @@ class _Track:
         wire_types: Sequence[WireType],
         now: datetime,
         horizon_days: float,
+        line_speeds: Mapping[str, float],
     ) -> None:
         self.session, self.rules, self.wire_types, self.now = session, rules, wire_types, now
-        self.geometry = geometry
+        self.geometry, self.line_speeds = geometry, line_speeds
         self.data = TrackData(session, track_id, [w.name for w in wire_types])
         self.existing = _Existing.load(session, track_id)
         self.horizon_end_years = float(years_since_epoch([now])[0]) + horizon_days / _DAYS_PER_YEAR
@@ -314,11 +316,23 @@ class _Track:
         row = units.row
         mast_from = rows.mast_from[row]
         length_m = rows.end_m[row] - rows.start_m[row]
+        masts = data.mast_geometry
+        if self.line_speeds:  # the configuration's, where the register gives none
+            line = self.session.scalar(
+                select(Line.code)
+                .join(Track, Track.line_id == Line.id)
+                .where(Track.id == data.track_id)
+            )
+            if line is not None and line in self.line_speeds:
+                speed = masts.line_speed_kmh
+                masts = replace(
+                    masts, line_speed_kmh=np.where(np.isnan(speed), self.line_speeds[line], speed)
+                )
         for name, rule in self.geometry:
             checked = check(
                 rule,
                 data.geometry,
-                data.mast_geometry,
+                masts,
                 row,
                 units.run_id,
                 mast_from,
@@ -587,6 +601,7 @@ class _Setup:
     types: list[WireType]
     now: datetime
     horizon_days: float
+    line_speeds: Mapping[str, float]
 
     @classmethod
     def of(
@@ -595,6 +610,7 @@ class _Setup:
         wire_types: Mapping[str, WireType],
         now: datetime | None,
         horizon_days: float,
+        line_speeds: Mapping[str, float] | None,
     ) -> _Setup:
         types = [wire_types[n] for n in sorted(wire_types)]
         return cls(
@@ -603,6 +619,7 @@ class _Setup:
             types,
             now or datetime.now(UTC),
             horizon_days,
+            dict(line_speeds or {}),
         )
 
     def evaluate(
@@ -625,6 +642,7 @@ class _Setup:
                 self.types,
                 self.now,
                 self.horizon_days,
+                self.line_speeds,
             )
             track.evaluate(run_ids, result)
             track.flush(result)
@@ -669,16 +687,18 @@ def evaluate_alerts(
     run_ids: Sequence[int] | None = None,
     now: datetime | None = None,
     horizon_days: float = DEFAULT_HORIZON_DAYS,
+    line_speeds: Mapping[str, float] | None = None,
 ) -> Evaluation:
     """Evaluate ``policy`` on the spans runs ``run_ids`` measured (None: every span of the
     fleet) at ``now`` (default: the current time), forecasting ``horizon_days`` ahead, and
     mark the runs evaluated (those of ``run_ids``, or every run of the tracks evaluated).
+    ``line_speeds`` [km/h] by line code stand in for the register's ``line_speed_kmh``.
 
     Runs in the caller's transaction (see the module docstring for what it raises, updates and
     resolves). Raises ``UserError`` for a run id that does not exist, or a policy limit that a
     wire type cannot reach.
     """
-    setup = _Setup.of(policy, wire_types, now, horizon_days)
+    setup = _Setup.of(policy, wire_types, now, horizon_days, line_speeds)
     result = Evaluation(policy=policy.name)
     tracks = [t for t, _, _ in _tracks_of(session, run_ids, result)]
     setup.evaluate(session, tracks, run_ids, result)
@@ -695,6 +715,7 @@ def evaluate_tracks(
     now: datetime | None = None,
     horizon_days: float = DEFAULT_HORIZON_DAYS,
     notifications: NotificationConfig | None = None,
+    line_speeds: Mapping[str, float] | None = None,
 ) -> Evaluation:
     """``evaluate_alerts`` with each track in a transaction of its own, the new alerts'
     notifications queued in it (``notifications``: the channels; None: not queued).
@@ -703,7 +724,7 @@ def evaluate_tracks(
     (line and track codes, the reason); the other tracks are still evaluated and committed.
     Announce the new alerts once it returns (``announce_alerts``).
     """
-    setup = _Setup.of(policy, wire_types, now, horizon_days)
+    setup = _Setup.of(policy, wire_types, now, horizon_days, line_speeds)
     result = Evaluation(policy=policy.name)
     with session_scope(engine, read_only=True) as session:
         tracks = _tracks_of(session, run_ids, result)
@@ -740,6 +761,7 @@ def evaluate_all(
         now=now,
         horizon_days=horizon_days(settings),
         notifications=notification_config(settings),
+        line_speeds=line_speeds(settings),
     )
 
 
@@ -747,11 +769,12 @@ def evaluate_all(
 class RunAlerting:
     """What a run's alerts are evaluated with once it is stored: the wear-limit policy (None:
     none configured), checked against the wire types before the run is processed, and the
-    planning horizon [days]."""
+    planning horizon [days] and the configured line speeds [km/h] by line code."""
 
     policy: LimitPolicy | None
     wire_types: Mapping[str, WireType]
     horizon_days: float
+    line_speeds: Mapping[str, float] = field(default_factory=dict)
 
 
 def run_alerting(
@@ -764,7 +787,7 @@ def run_alerting(
     policy = policy or choose_policy(settings, registry.limit_policies(), wire_types=wire_types)
     if policy is not None:
         check_policy(policy, wire_types)
-    return RunAlerting(policy, wire_types, horizon_days(settings))
+    return RunAlerting(policy, wire_types, horizon_days(settings), line_speeds(settings))
 
 
 def evaluate_stored_run(
@@ -786,6 +809,7 @@ def evaluate_stored_run(
         run_ids=[run_id],
         horizon_days=alerting.horizon_days,
         notifications=notification_config(settings),
+        line_speeds=alerting.line_speeds,
     )
     announce_alerts(engine, registry, result.new)
     return result
