@@ -38,9 +38,11 @@ of either kind)::
   span's first mast within ``tolerance_mm`` of the register's ``design_stagger_mm``
   (``design_height_mm``): a condition of the mast, shown on the span that starts there.
 
-The line speed of a span is the register's ``line_speed_kmh`` at its first mast; a rule with a
-speed band does not apply to spans without one. ``GeometryRule.limit_mm`` etc. say what the
-alert engine compares.
+The line speed of a span is the register's ``line_speed_kmh`` at its first mast, else its
+line's in the config (``[maintenance] line_speed_kmh = {LINE = km/h}``); a rule with a speed
+band does not apply to spans without one. ``catenary.maintenance.alerts.geometry`` compares
+them (running wires only); a geometry alert is resolved by a run back within its limit by
+2 mm, or by a maintenance action ``adjusted`` covering it.
 
 ``thresholds(wire, policy)`` expresses every rule that applies to a wire type as residual
 thickness, worn fraction and wear width together. A user's config names a policy in an
