@@ -92,17 +92,17 @@ class Checked:
 
 
 def running(
-    run_id: IntArray, mast_from: IntArray, span: IntArray, height_start_mm: FloatArray
+    run_id: IntArray, mast: IntArray, span: IntArray, height_at_mast_mm: FloatArray
 ) -> BoolArray:
-    """Whether each row ``(m,)`` is a running wire at its span's first mast: within
-    ``RUNNING_LIFT_MM`` of the lowest there among the rows of its run and span (all of them
-    when none has a height there)."""
-    group = _groups(run_id, np.where(mast_from >= 0, mast_from, -1 - span))
+    """Whether each row ``(m,)`` is a running wire at one of its span's masts (``mast``, -1:
+    none, and the wire's median height there): within ``RUNNING_LIFT_MM`` of the lowest wire
+    there among the rows of its run and span (all of them when none has a height there)."""
+    group = _groups(run_id, np.where(mast >= 0, mast, -1 - span))
     lowest = np.full(int(group.max()) + 1 if group.size else 0, np.inf)
-    finite = np.isfinite(height_start_mm)
-    np.minimum.at(lowest, group[finite], height_start_mm[finite])
+    finite = np.isfinite(height_at_mast_mm)
+    np.minimum.at(lowest, group[finite], height_at_mast_mm[finite])
     none_known = ~np.isfinite(lowest[group])
-    near = height_start_mm <= lowest[group] + RUNNING_LIFT_MM
+    near = height_at_mast_mm <= lowest[group] + RUNNING_LIFT_MM
     out: BoolArray = none_known | (finite & near)
     return out
 
