@@ -388,3 +388,17 @@ def test_a_bad_line_speed_table_is_one_line(table: str, message: str, tmp_path: 
     assert result.exit_code == 1
     (line,) = result.output.strip().splitlines()
     assert line.startswith(f"Error: {config}: [maintenance]: ") and message in line
+
+
+def test_the_design_height_at_a_mast() -> None:
+    # masts designed at 5500 mm; the wires hang at 5530, 5470 and 5497 mm there
+    geometry = rows(height_start_mm=[5530.0, 5470.0, 5497.0])
+    masts = MastGeometry(np.full(3, np.nan), np.full(3, 5500.0), np.full(3, np.nan))
+    rule = GeometryRule(check="design_height", level="plan", tolerance_mm=25.0)
+    index = np.arange(3)
+    ones = np.ones(3, dtype=bool)
+    checked = check(rule, geometry, masts, index, index, index, np.full(3, 50.0), np.ones(3),
+                    ones, ones)  # fmt: skip
+    np.testing.assert_allclose(checked.value, [30.0, 30.0, 3.0])
+    assert checked.met().tolist() == [True, True, False]
+    assert checked.clear().tolist() == [False, False, True]  # 22 mm within, beyond the margin
