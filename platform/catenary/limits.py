@@ -17,10 +17,39 @@ files (layout in the built-in presets, ``catenary_wiretypes.PRESETS_PATH``)::
     inclusive = true                 # met at the value (default) or only beyond it
     wire_types = ["AC-120"]          # optional: default all wire types
 
+A policy also holds **geometry rules**, beside the wear rules (a policy needs at least one rule
+of either kind)::
+
+    [[policies.db-ril-997.geometry]]
+    check = "stagger"                # see GEOMETRY_CHECKS
+    level = "urgent"
+    action = "re-register the wire"
+    max_abs_mm = 300.0               # stagger: |stagger| at most this (the pantograph's range)
+    min_speed_kmh = 200.0            # optional: only where the line speed is above this
+    max_speed_kmh = 400.0            # optional: only where it is at most this
+
+``check`` is one of
+
+- ``height``: the span's contact wire height within ``min_mm`` and/or ``max_mm``;
+- ``height_gradient``: the height change between the span's two masts (the medians within
+  1 m of each) over the span's length at most ``max_per_mille`` (1/1000);
+- ``stagger``: the span's stagger within ``max_abs_mm`` either side of the track centre;
+- ``design_stagger``, ``design_height``: the wire's median stagger (height) within 1 m of the
+  span's first mast within ``tolerance_mm`` of the register's ``design_stagger_mm``
+  (``design_height_mm``): a condition of the mast, shown on the span that starts there.
+
+The line speed of a span is the register's ``line_speed_kmh`` at its first mast, else its
+line's in the config (``[maintenance] line_speed_kmh = {LINE = km/h}``); a rule with a speed
+band does not apply to spans without one. ``catenary.maintenance.alerts.geometry`` compares
+them (running wires only); a geometry alert is resolved by a run back within its limit by
+2 mm, or by a maintenance action ``adjusted`` covering it.
+
 ``thresholds(wire, policy)`` expresses every rule that applies to a wire type as residual
 thickness, worn fraction and wear width together. A user's config names a policy in an
 optional ``[limits]`` section: ``policy = "<name>"`` and, for their own file instead of the
-presets, ``file = "<path>"`` (``policy_from_config``). The alert engine uses these later.
+presets, ``file = "<path>"`` (``policy_from_config``). Without one, alerts are evaluated with
+each wire type's own standard limit (``standard_policy``: its profile's published minimum
+residual thickness, else the manufacturers' 30 % rule).
 """
 
 from __future__ import annotations
@@ -34,7 +63,7 @@ from typing import Any
 
 from catenary.config import Settings
 from catenary.errors import UserError
-from catenary.wiretype import ProfileRangeError, WireType
+from catenary.wiretype import STANDARD_WORN_FRACTION, ProfileRangeError, WireType
 
 LEVELS = ("plan", "urgent", "critical")
 """Alert levels, least to most severe: schedule work, act before the next run, end of life."""
@@ -51,7 +80,26 @@ _RULE_KEYS = {
     "inclusive",
     "wire_types",
 }
-_POLICY_KEYS = {"description", "source", "rules"}
+_POLICY_KEYS = {"description", "source", "rules", "geometry"}
+
+GEOMETRY_CHECKS = ("height", "height_gradient", "stagger", "design_stagger", "design_height")
+"""What a geometry rule checks (the module docstring)."""
+
+_GEOMETRY_LIMITS = {
+    "height": ("min_mm", "max_mm"),
+    "height_gradient": ("max_per_mille",),
+    "stagger": ("max_abs_mm",),
+    "design_stagger": ("tolerance_mm",),
+    "design_height": ("tolerance_mm",),
+}
+_GEOMETRY_KEYS = {
+    "check",
+    "level",
+    "action",
+    "min_speed_kmh",
+    "max_speed_kmh",
+    *(key for keys in _GEOMETRY_LIMITS.values() for key in keys),
+}
 _CONFIG_KEYS = {"policy", "file"}
 
 
@@ -102,13 +150,69 @@ class LimitRule:
 
 
 @dataclass(frozen=True)
+class GeometryRule:
+    """A geometry rule of a policy (``check`` and its limits: the module docstring) [mm,
+    1/1000, km/h]; NaN where a limit is not given. It applies where the line speed lies in
+    ``(min_speed_kmh, max_speed_kmh]`` (NaN: no bound, and no line speed needed)."""
+
+    check: str
+    level: str
+    action: str = ""
+    min_mm: float = math.nan
+    max_mm: float = math.nan
+    max_per_mille: float = math.nan
+    max_abs_mm: float = math.nan
+    tolerance_mm: float = math.nan
+    min_speed_kmh: float = math.nan
+    max_speed_kmh: float = math.nan
+
+    def __post_init__(self) -> None:
+        if self.check not in GEOMETRY_CHECKS:
+            raise ValueError(f"check must be one of {', '.join(GEOMETRY_CHECKS)}")
+        if self.level not in LEVELS:
+            raise ValueError(f"level must be one of {', '.join(LEVELS)}, not {self.level!r}")
+        given = [k for k in _GEOMETRY_LIMITS[self.check] if math.isfinite(getattr(self, k))]
+        if not given:
+            raise ValueError(f"{self.check}: give {' or '.join(_GEOMETRY_LIMITS[self.check])}")
+
+    @property
+    def speed_band(self) -> bool:
+        return math.isfinite(self.min_speed_kmh) or math.isfinite(self.max_speed_kmh)
+
+    @property
+    def criterion(self) -> str:
+        """The rule as text, e.g. ``"|stagger| <= 300 mm (line speed > 200 km/h)"``."""
+        if self.check == "height":
+            parts = []
+            if math.isfinite(self.min_mm):
+                parts.append(f"height >= {self.min_mm:g} mm")
+            if math.isfinite(self.max_mm):
+                parts.append(f"height <= {self.max_mm:g} mm")
+            text = " and ".join(parts)
+        elif self.check == "height_gradient":
+            text = f"|height gradient| <= {self.max_per_mille:g} per mille"
+        elif self.check == "stagger":
+            text = f"|stagger| <= {self.max_abs_mm:g} mm"
+        else:
+            what = self.check.removeprefix("design_")
+            text = f"{what} at the mast within {self.tolerance_mm:g} mm of design"
+        band = []
+        if math.isfinite(self.min_speed_kmh):
+            band.append(f"> {self.min_speed_kmh:g} km/h")
+        if math.isfinite(self.max_speed_kmh):
+            band.append(f"<= {self.max_speed_kmh:g} km/h")
+        return text + (f" (line speed {' and '.join(band)})" if band else "")
+
+
+@dataclass(frozen=True)
 class LimitPolicy:
-    """An operator's wear limits: a named, sourced list of rules."""
+    """An operator's limits: a named, sourced list of wear rules and of geometry rules."""
 
     name: str
     description: str
     source: str
     rules: tuple[LimitRule, ...]
+    geometry: tuple[GeometryRule, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -202,6 +306,50 @@ def _parse_rule(raw: Any, where: str) -> LimitRule:
     )
 
 
+def _parse_geometry(raw: Any, where: str) -> GeometryRule:
+    if not isinstance(raw, dict):
+        raise UserError(f"{where}: must be a table, not {raw!r}")
+    unknown = sorted(set(raw) - _GEOMETRY_KEYS)
+    if unknown:
+        raise UserError(
+            f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(_GEOMETRY_KEYS))})"
+        )
+    for key in ("check", "level"):
+        if key not in raw:
+            raise UserError(f"{where}: missing key {key!r}")
+    check, level = raw["check"], raw["level"]
+    if check not in GEOMETRY_CHECKS:
+        raise UserError(
+            f"{where}: check must be one of {', '.join(GEOMETRY_CHECKS)}, not {check!r}"
+        )
+    if level not in LEVELS:
+        raise UserError(f"{where}: level must be one of {', '.join(LEVELS)}, not {level!r}")
+    allowed = set(_GEOMETRY_LIMITS[check])
+    values: dict[str, float] = {}
+    for key in sorted(set(raw) & (_GEOMETRY_KEYS - {"check", "level", "action"})):
+        if key not in allowed and key not in ("min_speed_kmh", "max_speed_kmh"):
+            raise UserError(
+                f"{where}: {key} is not a limit of check {check!r} "
+                f"(its limits: {', '.join(_GEOMETRY_LIMITS[check])})"
+            )
+        value = _number(raw[key])
+        if value is None or not math.isfinite(value) or (value <= 0 and key != "min_speed_kmh"):
+            raise UserError(f"{where}: {key} must be a positive number, not {raw[key]!r}")
+        if value < 0:
+            raise UserError(f"{where}: {key} must be 0 or more, not {raw[key]!r}")
+        values[key] = value
+    if not allowed & set(values):
+        raise UserError(f"{where}: check {check!r} needs {' or '.join(sorted(allowed))}")
+    if values.get("min_mm", -math.inf) >= values.get("max_mm", math.inf):
+        raise UserError(f"{where}: min_mm must be below max_mm")
+    if values.get("min_speed_kmh", -math.inf) >= values.get("max_speed_kmh", math.inf):
+        raise UserError(f"{where}: min_speed_kmh must be below max_speed_kmh")
+    action = raw.get("action", "")
+    if not isinstance(action, str):
+        raise UserError(f"{where}: action must be a string, not {action!r}")
+    return GeometryRule(check=check, level=level, action=action, **values)
+
+
 def _parse_policy(name: str, raw: Any, origin: str) -> LimitPolicy:
     where = f"{origin}: policy {name!r}"
     if not isinstance(raw, dict):
@@ -217,15 +365,25 @@ def _parse_policy(name: str, raw: Any, origin: str) -> LimitPolicy:
         if not isinstance(value, str):
             raise UserError(f"{where}: {key} must be a string, not {value!r}")
         texts[key] = value
-    rules = raw.get("rules")
-    if not isinstance(rules, list) or not rules:
-        raise UserError(f"{where}: needs at least one [[policies.{name}.rules]] table")
+    rules, geometry = raw.get("rules", []), raw.get("geometry", [])
+    for key, value in (("rules", rules), ("geometry", geometry)):
+        if not isinstance(value, list):
+            raise UserError(f"{where}: {key} must be [[policies.{name}.{key}]] tables")
+    if not rules and not geometry:
+        raise UserError(
+            f"{where}: needs at least one [[policies.{name}.rules]] or "
+            f"[[policies.{name}.geometry]] table"
+        )
     return LimitPolicy(
         name=name,
         description=texts["description"],
         source=texts["source"],
         rules=tuple(
             _parse_rule(rule, f"{where} rule {number}") for number, rule in enumerate(rules, 1)
+        ),
+        geometry=tuple(
+            _parse_geometry(rule, f"{where} geometry rule {number}")
+            for number, rule in enumerate(geometry, 1)
         ),
     )
 
@@ -316,17 +474,61 @@ def policy_from_config(
     return select_policy(policies, name, origin=origin)
 
 
+STANDARD_POLICY = "standard-limits"
+"""The name of the policy evaluated without one configured (``standard_policy``)."""
+
+
+def standard_policy(wire_types: Mapping[str, WireType]) -> LimitPolicy:
+    """Each wire type's own standard limit (``WireType.standard_limit``): a critical local
+    rule at its published minimum residual thickness, or at the manufacturers' 30 % loss of
+    cross-section for the wire types with none published."""
+    published = sorted(n for n, w in wire_types.items() if w.published_min_mm is not None)
+    others = tuple(sorted(n for n in wire_types if n not in published))
+    rules = [
+        LimitRule(
+            level="critical",
+            scope="local",
+            residual_thickness_mm=wire_types[name].published_min_mm,
+            wire_types=(name,),
+            action="the profile's published minimum residual thickness reached",
+        )
+        for name in published
+    ]
+    if others:
+        rules.append(
+            LimitRule(
+                level="critical",
+                scope="local",
+                worn_fraction=STANDARD_WORN_FRACTION,
+                wire_types=others,
+                action="the manufacturers' allowable wear reached (30 % loss of cross-section)",
+            )
+        )
+    return LimitPolicy(
+        name=STANDARD_POLICY,
+        description=(
+            "each wire type's standard limit: its profile's published minimum residual "
+            "thickness, else the manufacturers' 30 % loss of cross-section"
+        ),
+        source="the wire types' profiles; reference/wire-profiles.md, 'Wear limits in use'",
+        rules=tuple(rules),
+    )
+
+
 def choose_policy(
     settings: Settings,
     presets: Mapping[str, LimitPolicy],
     name: str | None = None,
     policy_file: Path | None = None,
+    *,
+    wire_types: Mapping[str, WireType] | None = None,
 ) -> LimitPolicy | None:
     """The policy a command is told to use, or None without one.
 
     ``name`` (``--policy``) picks one of ``policy_file``'s policies (``--policy-file``; a file
     of a single policy needs no name), else of the ``presets``; with neither, the config's
-    ``[limits]`` section (``policy_from_config``) decides.
+    ``[limits]`` section (``policy_from_config``) decides, and without one, given
+    ``wire_types``, their standard limits (``standard_policy``).
     """
     if policy_file is not None:
         policies = load_policies(policy_file)
@@ -340,9 +542,12 @@ def choose_policy(
         return select_policy(policies, name, origin=str(policy_file))
     if name is not None:
         return select_policy(presets, name, origin="wear-limit presets")
-    return policy_from_config(
+    configured = policy_from_config(
         settings.sections.get("limits"), presets=presets, config_path=settings.config_path
     )
+    if configured is None and wire_types:
+        return standard_policy(wire_types)
+    return configured
 
 
 def thresholds(wire: WireType, policy: LimitPolicy) -> list[Threshold]:
@@ -386,8 +591,11 @@ def thresholds(wire: WireType, policy: LimitPolicy) -> list[Threshold]:
 
 
 __all__ = [
+    "GEOMETRY_CHECKS",
     "LEVELS",
     "SCOPES",
+    "STANDARD_POLICY",
+    "GeometryRule",
     "LimitPolicy",
     "LimitRule",
     "Threshold",
@@ -396,5 +604,6 @@ __all__ = [
     "parse_policies",
     "policy_from_config",
     "select_policy",
+    "standard_policy",
     "thresholds",
 ]

@@ -96,6 +96,11 @@ def wear_width_for_worn_area_mm(
     return np.where(np.isnan(target), np.nan, width)
 
 
+STANDARD_WORN_FRACTION = 0.30
+"""The manufacturers' allowable wear (a 30 % wear mark, reference/wire-profiles.md): the
+standard limit of a wire type with no published minimum residual thickness."""
+
+
 @dataclass(frozen=True)
 class WireType:
     """A contact wire profile registered by a wire-type plugin.
@@ -103,6 +108,8 @@ class WireType:
     ``height_mm`` (A) and ``width_mm`` (B) are the new wire's dimensions; ``area_mm2`` is the
     cross-section the worn fraction is taken of (the calculated area where the standard gives
     one). ``legacy`` marks profiles withdrawn from the current edition of their standard.
+    ``published_min_mm`` is the profile's published minimum residual thickness (None: none
+    published; its standard limit is then ``STANDARD_WORN_FRACTION``).
     """
 
     name: str
@@ -113,6 +120,7 @@ class WireType:
     nominal_area_mm2: float
     legacy: bool = False
     source: str = ""
+    published_min_mm: float | None = None
 
     def __post_init__(self) -> None:
         if not (self.height_mm > 0 and self.width_mm > 0 and self.area_mm2 > 0):
@@ -122,6 +130,23 @@ class WireType:
                 f"wire type {self.name!r}: height {self.height_mm} mm is less than the "
                 f"radius {self.width_mm / 2} mm of its round part"
             )
+        low, high = self.min_residual_thickness_mm, self.height_mm
+        if self.published_min_mm is not None and not low <= self.published_min_mm < high:
+            raise ValueError(
+                f"wire type {self.name!r}: published minimum {self.published_min_mm} mm is "
+                f"outside its profile ({low:.2f} to {high:.2f} mm)"
+            )
+
+    @property
+    def standard_limit(self) -> str:
+        """The wire type's own standard limit in words: its published minimum, or the
+        manufacturers' 30 % rule."""
+        if self.published_min_mm is not None:
+            return f"residual thickness {self.published_min_mm:g} mm (published minimum)"
+        return (
+            f"{100 * STANDARD_WORN_FRACTION:g} % loss of cross-section "
+            "(the manufacturers' rule: no published minimum)"
+        )
 
     @property
     def min_residual_thickness_mm(self) -> float:

@@ -31,6 +31,7 @@ _FIELDS = {
     "legacy": bool,
     "source": str,
 }
+_OPTIONAL = {"min_residual_thickness_mm": float}
 
 
 def _wire_type(raw: Any, number: int) -> WireType:
@@ -38,19 +39,21 @@ def _wire_type(raw: Any, number: int) -> WireType:
     if not isinstance(raw, dict):
         raise ValueError(f"{where}: must be a table")
     where = f"{PROFILES_RESOURCE}: profile {raw.get('name', number)!r}"
-    unknown = sorted(set(raw) - set(_FIELDS))
+    unknown = sorted(set(raw) - set(_FIELDS) - set(_OPTIONAL))
     if unknown:
         raise ValueError(f"{where}: unknown key {unknown[0]!r}")
     values: dict[str, Any] = {}
-    for key, kind in _FIELDS.items():
+    for key, kind in (_FIELDS | _OPTIONAL).items():
         if key not in raw:
+            if key in _OPTIONAL:
+                continue
             raise ValueError(f"{where}: missing key {key!r}")
         value = raw[key]
         if kind is float and isinstance(value, int) and not isinstance(value, bool):
             value = float(value)
         if not isinstance(value, kind):
             raise ValueError(f"{where}: {key} must be a {kind.__name__}, not {value!r}")
-        values[key] = value
+        values["published_min_mm" if key in _OPTIONAL else key] = value
     return WireType(**values)
 
 

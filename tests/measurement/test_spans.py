@@ -57,3 +57,32 @@ def test_spans_between_turning_points_closed_by_the_run_ends():
         [-1, 0, 0, 1, 3, 3, -1, -1],
     )
     assert layout.mast_from == (None,) * 4
+
+
+def test_the_values_at_a_mast_are_the_medians_within_a_metre_of_it_over_blocks():
+    # masts at 0, 50 and 100 m; one wire whose stagger is a V with its tip at the middle mast
+    # (200 mm there, falling 10 mm/m either side) and height 5500 + chainage mm; samples every
+    # 0.1 m in three blocks that split the samples near the middle mast
+    chainage = np.arange(0.05, 100.0, 0.1)
+    stagger = 200.0 - 10.0 * np.abs(chainage - 50.0)
+    height = 5500.0 + chainage
+    span = (chainage >= 50.0).astype(np.int64)
+    accumulator = SpanAccumulator(np.array([0.0, 50.0, 100.0]))
+    for block in np.array_split(np.arange(chainage.shape[0]), [495, 503]):
+        accumulator.add(
+            span[block], np.zeros(block.shape[0]), chainage[block],
+            np.full(block.shape[0], 10.0), height[block], stagger[block],
+        )  # fmt: skip
+    first, second = accumulator.results()
+    # within ±1 m: the V's median lies half a metre down it (5 mm), the height's at the mast
+    assert first.height_at_end_mm == second.height_at_start_mm
+    assert math.isclose(second.height_at_start_mm, 5550.0, abs_tol=0.1)
+    assert math.isclose(second.stagger_at_start_mm, 195.0, abs_tol=0.6)
+    # the run's end masts: only the metre inside the run
+    assert math.isclose(first.height_at_start_mm, 5500.5, abs_tol=0.1)
+    assert math.isclose(second.height_at_end_mm, 5599.5, abs_tol=0.1)
+    # without the masts' chainages: no values at them
+    plain = SpanAccumulator()
+    plain.add(span, np.zeros(span.shape[0]), chainage, np.full(span.shape[0], 10.0), height,
+              stagger)  # fmt: skip
+    assert all(math.isnan(s.stagger_at_start_mm) for s in plain.results())

@@ -93,14 +93,10 @@ def test_one_broken_track_does_not_stop_the_others(
         broken, "run 1 is stored", "line L1 track 1", "ZeroDivisionError: area table not loaded"
     )
     assert "stored as run 1" in broken.stdout
-    # another track's run, stored without a policy: pending
-    no_policy = tmp_path / "no-policy.toml"
-    no_policy.write_text("")
-    other = catenary(
-        "--config", no_policy, "process", second_small_run.run, "--rig", second_small_run.rig,
-        "--masts", second_small_run.masts, env=plugin,
-    )  # fmt: skip
-    assert_succeeded(other)
+    # another track's run, killed right after its commit: pending
+    killer = install_plugin(tmp_path / "killer", "killer", KILLED_AFTER_COMMIT)
+    other = _process(second_small_run, config, env=killer)
+    assert other.returncode == -signal.SIGKILL, other.stdout + other.stderr
     assert stored_runs() == ([1, 2], [1, 2], 0)
     # every track: the broken one named, the other evaluated and committed
     evaluated = catenary("--config", config, "alerts", "evaluate", "--all", env=plugin)

@@ -105,6 +105,7 @@ def push(ctx: click.Context, central_path: Path, run_files: bool) -> None:
             run_ids=result.run_ids,
             horizon_days=alerting.horizon_days,
             notifications=notification_config(central),
+            line_speeds=alerting.line_speeds,
         )
         announce_alerts(engine, app.registry, evaluation.new)
     click.echo(f"alerts     {evaluation.summary()} (policy {evaluation.policy}, central)")

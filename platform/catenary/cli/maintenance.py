@@ -37,9 +37,10 @@ __all__ = ["alerts", "maintenance"]
 
 def _policy(app: CommandContext, name: str | None, policy_file: Path | None) -> LimitPolicy:
     """The policy named on the command line (a preset, or one of ``policy_file``), else the
-    config's ``[limits]``."""
+    config's ``[limits]``, else the wire types' standard limits."""
     presets = app.registry.limit_policies()
-    policy = choose_policy(app.settings, presets, name, policy_file)
+    wire_types = app.registry.wire_types()
+    policy = choose_policy(app.settings, presets, name, policy_file, wire_types=wire_types)
     if policy is None:
         raise UserError(
             'no wear-limit policy: set [limits] policy = "NAME" in the config, or give --policy '
@@ -87,7 +88,12 @@ def evaluate_command(
     Each track is evaluated in a transaction of its own: a track whose evaluation fails is
     named (its runs stay pending) and the others are still evaluated; the exit status is 1.
     """
-    from catenary.maintenance.alerts import announce_alerts, evaluate_tracks, horizon_days
+    from catenary.maintenance.alerts import (
+        announce_alerts,
+        evaluate_tracks,
+        horizon_days,
+        line_speeds,
+    )
     from catenary.storage.database import session_scope
     from catenary.storage.runs import find_run
 
@@ -95,7 +101,7 @@ def evaluate_command(
         raise click.UsageError("give --run ID or --all")
     app = app_of(ctx)
     policy = _policy(app, policy_name, policy_file)
-    horizon = horizon_days(app.settings)
+    horizon, speeds = horizon_days(app.settings), line_speeds(app.settings)
     with app.database(batch=everything) as engine:
         run_ids = None
         if run_reference is not None:
@@ -108,6 +114,7 @@ def evaluate_command(
             run_ids=run_ids,
             now=_now(),
             horizon_days=horizon,
+            line_speeds=speeds,
         )
         announce_alerts(engine, app.registry, result.new)
     scope = "every span" if run_ids is None else f"run {run_ids[0]}"
@@ -142,6 +149,13 @@ def _what(alert: Alert) -> str:
             f"({span}), wear {details.get('wear_rate_mm_per_year', 0.0):.3f} "
             f"+- {details.get('wear_rate_se_mm_per_year', 0.0):.3f} mm/year"
         )
+    if alert.kind == "geometry":
+        check = str(details.get("check", "geometry"))
+        unit = "per mille" if check == "height_gradient" else "mm"
+        text = f"{check} {alert.value:.1f} {unit}, limit {alert.threshold:.1f} {unit}"
+        if "design_mm" in details and "measured_mm" in details:
+            text += f" (at the mast {details['measured_mm']} mm, design {details['design_mm']} mm)"
+        return text
     scope = "anchor section average" if details.get("anchor_section") else "minimum"
     return f"{scope} {alert.value:.2f} mm, limit {alert.threshold:.2f} mm"
 
@@ -453,7 +467,7 @@ def _moment(text: str | None) -> datetime:
     required=True,
     metavar="KIND",
     help=f"What was done: {', '.join(MAINTENANCE_KINDS)} ({', '.join(REPAIR_KINDS)} resolve "
-    "the alerts on the stretch).",
+    "the alerts on the stretch, adjusted its geometry alerts).",
 )
 @click.option(
     "--by",

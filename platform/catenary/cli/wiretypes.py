@@ -38,6 +38,7 @@ def _show_wire_type(
     )
     if wire.source:
         click.echo(f"  source: {wire.source}")
+    click.echo(f"  standard limit: {wire.standard_limit}")
     click.echo("")
     widths = np.append(np.arange(0.0, np.floor(wire.width_mm) + 1.0), wire.width_mm)
     widths = np.unique(np.minimum(widths, wire.width_mm))
@@ -79,7 +80,8 @@ def _show_wire_type(
     "--policy",
     "policy_name",
     metavar="NAME",
-    help="Show the thresholds of this wear-limit policy (default: the config's [limits]).",
+    help="Show the thresholds of this wear-limit policy (default: the config's [limits], "
+    "else the wire types' standard limits).",
 )
 @click.option(
     "--policy-file",
@@ -99,7 +101,13 @@ def wire_types_command(
         if wire is None:
             known = ", ".join(sorted(wire_types, key=_wire_type_sort_key)) or "none"
             raise UserError(f"unknown wire type {name!r} (known: {known})")
-        policy = choose_policy(app.settings, registry.limit_policies(), policy_name, policy_file)
+        policy = choose_policy(
+            app.settings,
+            registry.limit_policies(),
+            policy_name,
+            policy_file,
+            wire_types=wire_types,
+        )
         _show_wire_type(
             wire, registry.owner("wire type", name), policy, list(registry.limit_policies())
         )

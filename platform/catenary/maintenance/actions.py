@@ -2,8 +2,10 @@
 
 A repair (``REPAIR_KINDS``: the wire replaced, reinforced or spliced) changes the worn
 profile, so it ends the alerts on the wire it covers and starts that wire's history afresh
-(only runs after it count, for thresholds and forecasts alike); an inspection or an
-adjustment is recorded and changes nothing. An action covers
+(only runs after it count, for thresholds and forecasts alike). An adjustment (``adjusted``:
+the wire's height or stagger set right) ends the geometry alerts it covers and leaves the wear
+alerts and histories as they are; an inspection is recorded and changes nothing. An action
+covers
 
 - a **span**: when it touches it, i.e. overlaps it by more than ``COVER_TOLERANCE_M`` or lies
   inside it (a splice at one point covers the span it is in, a replacement from mast 14 to
@@ -31,6 +33,7 @@ from catenary.errors import UserError
 from catenary.storage.models import Alert, MaintenanceAction, Track
 
 __all__ = [
+    "ADJUSTED",
     "COVER_TOLERANCE_M",
     "REPAIR_KINDS",
     "Recorded",
@@ -38,6 +41,9 @@ __all__ = [
     "record_maintenance",
     "touches",
 ]
+
+ADJUSTED = "adjusted"
+"""The maintenance kind that sets a wire's geometry right (resolves geometry alerts)."""
 
 COVER_TOLERANCE_M = 0.5
 """How far an action's end may miss a span's or section's end [m] (chainages aligned to the
@@ -82,7 +88,8 @@ def record_maintenance(
     note: str | None = None,
 ) -> Recorded:
     """Add a maintenance action on ``track`` from ``from_m`` to ``to_m`` [m]; a repair resolves
-    the open and acknowledged alerts it covers (``resolved_at = now``).
+    the open and acknowledged alerts it covers, an adjustment the geometry alerts it covers
+    (``resolved_at = now``).
 
     Raises ``UserError`` for an unknown kind, a chainage that is not finite (an infinite
     stretch would restart every span's history of the track), a negative wire or an empty
@@ -114,7 +121,7 @@ def record_maintenance(
     )
     session.add(action)
     session.flush()
-    if kind not in REPAIR_KINDS:
+    if kind not in (*REPAIR_KINDS, ADJUSTED):
         return Recorded(action=action, resolved=())
     query = select(Alert).where(
         Alert.track_id == track.id,
@@ -124,6 +131,8 @@ def record_maintenance(
     )
     if wire is not None:
         query = query.where(Alert.wire == wire)
+    if kind == ADJUSTED:
+        query = query.where(Alert.kind == "geometry")
     candidates = list(session.scalars(query.order_by(Alert.id)))
     section = np.array(
         [(a.details or {}).get("scope") == "anchor_section_average" for a in candidates]

@@ -58,7 +58,7 @@ def evaluate_alerts(context: JobContext, fire_time: datetime, options: Mapping[s
     pending for the next run; the others are evaluated."""
     evaluation = evaluate_all(context.engine, context.settings, context.registry, context.clock())
     if evaluation is None:
-        log.warning("evaluate-alerts: no wear-limit policy configured ([limits]); skipped")
+        log.warning("evaluate-alerts: no wear-limit policy ([limits]) nor wire types; skipped")
         return
     announce_alerts(context.engine, context.registry, evaluation.new)
     for failure in evaluation.failed:

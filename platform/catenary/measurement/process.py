@@ -508,7 +508,7 @@ def _finish(
     the span statistics, the samples outside every span, the faulty ones and the uncertain
     ones (``selection_uncertain``). Faulty and uncertain samples are not in the statistics;
     ``minima`` gets each span's and wire's thinnest sample of them."""
-    spans = SpanAccumulator()
+    spans = SpanAccumulator(layout.boundaries_m)
     outside = faulty = uncertain = 0
     names = sorted({n for n in (*layout.wire_type, run_wire_type) if n is not None})
     for batch in read_sample_batches(measured):
@@ -634,9 +634,16 @@ def _span_rows(
                 stagger_min_mm=s.stagger_min_mm,
                 stagger_max_mm=s.stagger_max_mm,
                 samples=s.samples,
+                height_at_start_mm=_or_none(s.height_at_start_mm),
+                height_at_end_mm=_or_none(s.height_at_end_mm),
+                stagger_at_start_mm=_or_none(s.stagger_at_start_mm),
             )
         )
     return rows
+
+
+def _or_none(value_mm: float) -> float | None:
+    return value_mm if math.isfinite(value_mm) else None
 
 
 def _scratch_name(kind: str, token: str) -> str:

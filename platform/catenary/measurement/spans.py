@@ -5,7 +5,10 @@ the next and has the wire type of the mast at its start), or, without a register
 stagger's turning points (the registration points) found along the run, with the run's ends
 closing its first and last span. :class:`SpanAccumulator` gathers, block after block, each
 span and wire's minimum residual thickness and where it lies, its mean, the height and
-stagger ranges and the number of samples, in memory bounded by the number of spans.
+stagger ranges and the number of samples, in memory bounded by the number of spans; and, given
+the spans' boundaries (the masts), the median height and stagger of each wire within
+``MAST_WINDOW_M`` of each boundary (the wire's values at the mast: its design values compare
+with these), in memory bounded by the samples of those few metres.
 """
 
 from __future__ import annotations
@@ -22,6 +25,7 @@ from catenary.domain import TrackRegister
 from catenary.measurement.chainage import span_index
 
 __all__ = [
+    "MAST_WINDOW_M",
     "SPAN_COLUMNS",
     "SPAN_SCHEMA",
     "SpanAccumulator",
@@ -65,6 +69,9 @@ SPAN_SCHEMA = pa.schema(
     ]
 )
 """The ``spans`` export's Arrow schema."""
+
+MAST_WINDOW_M = 1.0
+"""A wire's value at a mast is the median of its samples within this distance of it [m]."""
 
 
 def span_table(rows: Iterable[object]) -> pa.Table:
@@ -142,13 +149,41 @@ class SpanStatistics:
     height_max_mm: float
     stagger_min_mm: float
     stagger_max_mm: float
+    height_at_start_mm: float = float("nan")
+    height_at_end_mm: float = float("nan")
+    stagger_at_start_mm: float = float("nan")
 
 
 class SpanAccumulator:
-    """Per span and wire statistics gathered over blocks of samples."""
+    """Per span and wire statistics gathered over blocks of samples; with ``boundaries_m``
+    (the layout's, ascending [m]), the wires' median height and stagger at each boundary."""
 
-    def __init__(self) -> None:
+    def __init__(self, boundaries_m: ArrayLike | None = None) -> None:
         self._groups: dict[tuple[int, int], list[float]] = {}
+        self._boundaries = (
+            np.zeros(0) if boundaries_m is None else np.asarray(boundaries_m, dtype=np.float64)
+        )
+        self._at_mast: dict[tuple[int, int], list[FloatArray]] = {}
+
+    def _add_at_masts(self, wire: IntArray, c: FloatArray, z: FloatArray, x: FloatArray) -> None:
+        b = self._boundaries
+        if b.shape[0] == 0:
+            return
+        right = np.clip(np.searchsorted(b, c), 0, b.shape[0] - 1)
+        left = np.maximum(right - 1, 0)
+        nearest = np.where(np.abs(c - b[left]) <= np.abs(c - b[right]), left, right)
+        near = np.abs(c - b[nearest]) <= MAST_WINDOW_M
+        for mast, w in set(zip(nearest[near].tolist(), wire[near].tolist(), strict=True)):
+            rows = near & (nearest == mast) & (wire == w)
+            self._at_mast.setdefault((mast, w), []).append(np.stack([z[rows], x[rows]]))
+
+    def _median_at(self, mast: int, wire: int) -> tuple[float, float]:
+        """Median height and stagger [mm] of ``wire`` at boundary ``mast`` (NaN: no sample)."""
+        parts = self._at_mast.get((mast, wire))
+        if not parts:
+            return float("nan"), float("nan")
+        values = np.concatenate(parts, axis=1)
+        return float(np.median(values[0])), float(np.median(values[1]))
 
     def add(
         self,
@@ -171,6 +206,7 @@ class SpanAccumulator:
         h = np.asarray(residual_thickness_mm, dtype=np.float64)[keep]
         z = np.asarray(height_mm, dtype=np.float64)[keep]
         x = np.asarray(stagger_mm, dtype=np.float64)[keep]
+        self._add_at_masts(w, c, z, x)
         finite = np.isfinite(h)
         # sorted by group, then by thickness (NaN last): each group's first row is its minimum
         order = np.lexsort((np.where(finite, h, np.inf), w, s))
@@ -217,6 +253,8 @@ class SpanAccumulator:
         """Every span and wire seen, in order of span then wire."""
         out = []
         for (span, wire), g in sorted(self._groups.items()):
+            height_start, stagger_start = self._median_at(span, wire)
+            height_end, _ = self._median_at(span + 1, wire)
             out.append(
                 SpanStatistics(
                     span=span,
@@ -230,6 +268,9 @@ class SpanAccumulator:
                     height_max_mm=g[6],
                     stagger_min_mm=g[7],
                     stagger_max_mm=g[8],
+                    height_at_start_mm=height_start,
+                    height_at_end_mm=height_end,
+                    stagger_at_start_mm=stagger_start,
                 )
             )
         return out

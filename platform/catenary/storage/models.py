@@ -66,7 +66,7 @@ EXTERNAL_TABLES: frozenset[str] = frozenset({"apscheduler_jobs"})
 RUN_DIRECTIONS = ("increasing", "decreasing")
 RUN_STATUSES = ("processing", "complete", "failed")
 ALERT_LEVELS = ("plan", "urgent", "critical")  # catenary.limits.LEVELS
-ALERT_KINDS = ("threshold", "forecast")
+ALERT_KINDS = ("threshold", "forecast", "geometry")
 NOTIFICATION_STATUSES = ("pending", "sent", "failed")
 
 SHA256_LENGTH = 64
@@ -406,6 +406,10 @@ class SpanMeasurement(Base):
     stagger_min_mm: Mapped[float] = mapped_column(Float)
     stagger_max_mm: Mapped[float] = mapped_column(Float)
     samples: Mapped[int] = mapped_column(Integer)
+    # medians within MAST_WINDOW_M of the span's masts [mm]; None: no sample there
+    height_at_start_mm: Mapped[float | None] = mapped_column(Float)
+    height_at_end_mm: Mapped[float | None] = mapped_column(Float)
+    stagger_at_start_mm: Mapped[float | None] = mapped_column(Float)
 
     run: Mapped[Run] = relationship(foreign_keys=[run_id])
     processing: Mapped[Processing] = relationship(back_populates="span_measurements")

@@ -278,14 +278,32 @@ def context(engine: Engine, registry: PluginRegistry, make_settings: Any) -> Job
     return JobContext(settings, registry, engine, UTC, clock=lambda: FIRE + timedelta(seconds=2))
 
 
-def test_evaluate_alerts_skips_without_a_policy(
+def test_evaluate_alerts_skips_without_a_policy_nor_wire_types(
     context: JobContext, caplog: pytest.LogCaptureFixture
 ) -> None:
     with caplog.at_level(logging.WARNING, "catenary.maintenance.jobs"):
         run_job("evaluate-alerts", {}, context, FIRE)
     assert caplog.messages == [
-        "evaluate-alerts: no wear-limit policy configured ([limits]); skipped"
+        "evaluate-alerts: no wear-limit policy ([limits]) nor wire types; skipped"
     ]
+
+
+def test_evaluate_alerts_without_a_policy_uses_the_standard_limits(
+    context: JobContext, fakes: Any, fleet_of: Any, caplog: pytest.LogCaptureFixture
+) -> None:
+    context = replace(context, registry=PluginRegistry(plugins=[("fakes", fakes)]))
+    with session_scope(context.engine) as session:
+        fleet = fleet_of(session)
+        # CTA120 has no published minimum: the 30 % rule, 8.75 mm; one span at 8.6 mm
+        fleet.run(fleet.track(), FIRE - timedelta(days=1), {3: 8.6, 4: 8.9})
+    with caplog.at_level(logging.INFO, "catenary.maintenance.jobs"):
+        run_job("evaluate-alerts", {}, context, FIRE)
+    assert caplog.messages == ["evaluate-alerts: 1 new (1 critical), 0 updated, 0 resolved"]
+    with session_scope(context.engine) as session:
+        (alert,) = session.scalars(select(Alert)).all()
+        assert (alert.level, alert.kind) == ("critical", "threshold")
+        assert alert.details["policy"] == "standard-limits"
+        assert alert.threshold == pytest.approx(8.75, abs=0.01)
 
 
 def test_evaluate_alerts_queues_the_new_alerts_in_the_same_transaction(

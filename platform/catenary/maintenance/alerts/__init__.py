@@ -10,6 +10,13 @@ thickness of its spans, at the latest run that measured it, does. (That is the t
 the average, not the average worn fraction: where wear is concentrated in a few spans the
 section's average worn fraction is somewhat higher.)
 
+**Geometry.** The policy's geometry rules (``catenary.limits``: height, height gradient,
+stagger, and the design stagger and height at each mast) on each history's latest span row
+(``catenary.maintenance.alerts.geometry``), alerts of kind ``geometry``; resolved by a run back
+within the limit by ``GEOMETRY_MARGIN_MM`` (2 mm) or by a maintenance action ``adjusted``
+covering them. A span's line speed is the register's ``line_speed_kmh`` at its first mast, else
+its line's in ``[maintenance] line_speed_kmh`` (``line_speeds``).
+
 **Forecasts.** Each local rule also has a forecast (``catenary.maintenance.forecast``): the
 history's wear
 rate (least squares over its runs, with its standard error) and the date its line reaches the
@@ -56,7 +63,12 @@ from catenary.maintenance.alerts.lifecycle import (
     new_alerts_since,
     resolve_alert,
 )
-from catenary.maintenance.alerts.rules import DEFAULT_HORIZON_DAYS, check_policy, horizon_days
+from catenary.maintenance.alerts.rules import (
+    DEFAULT_HORIZON_DAYS,
+    check_policy,
+    horizon_days,
+    line_speeds,
+)
 
 __all__ = [
     "ACTIVE",
@@ -73,6 +85,7 @@ __all__ = [
     "evaluate_stored_run",
     "evaluate_tracks",
     "horizon_days",
+    "line_speeds",
     "list_alerts",
     "new_alerts_since",
     "resolve_alert",

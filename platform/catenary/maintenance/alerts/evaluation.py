@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import hashlib
 from collections import Counter
-from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -22,7 +23,7 @@ from sqlalchemy.orm import Session, aliased
 from catenary.arrays import BoolArray, FloatArray, IntArray
 from catenary.config import Settings
 from catenary.errors import UserError, one_line
-from catenary.limits import LEVELS, LimitPolicy, choose_policy
+from catenary.limits import LEVELS, STANDARD_POLICY, GeometryRule, LimitPolicy, choose_policy
 from catenary.maintenance.forecast import (
     CONFIDENCE,
     ReachTimes,
@@ -48,6 +49,7 @@ from catenary.wiretype import WireType
 
 if TYPE_CHECKING:
     from catenary.plugins import PluginRegistry
+from catenary.maintenance.alerts.geometry import GEOMETRY_MARGIN_MM, Checked, check, running
 from catenary.maintenance.alerts.lifecycle import ACTIVE, announce_alerts, iso_utc
 from catenary.maintenance.alerts.rules import (
     DEFAULT_HORIZON_DAYS,
@@ -55,7 +57,9 @@ from catenary.maintenance.alerts.rules import (
     SECTION,
     Rule,
     check_policy,
+    geometry_rules_of,
     horizon_days,
+    line_speeds,
     rules_of,
 )
 from catenary.maintenance.alerts.trackdata import (
@@ -244,11 +248,14 @@ class _Track:
         session: Session,
         track_id: int,
         rules: list[Rule],
+        geometry: list[tuple[str, GeometryRule]],
         wire_types: Sequence[WireType],
         now: datetime,
         horizon_days: float,
+        line_speeds: Mapping[str, float],
     ) -> None:
         self.session, self.rules, self.wire_types, self.now = session, rules, wire_types, now
+        self.geometry, self.line_speeds = geometry, line_speeds
         self.data = TrackData(session, track_id, [w.name for w in wire_types])
         self.existing = _Existing.load(session, track_id)
         self.horizon_end_years = float(years_since_epoch([now])[0]) + horizon_days / _DAYS_PER_YEAR
@@ -273,39 +280,151 @@ class _Track:
             applies = np.isfinite(limit)
             met = rule.met(units.value_mm, limit) & applies
             clear = applies & (units.value_mm > limit + RESOLVE_MARGIN_MM)
-            engaged = self._cycle("threshold", rule, units, limit, met, clear, None)
+            engaged = self._cycle(
+                "threshold",
+                rule.name,
+                units,
+                limit,
+                met,
+                clear,
+                partial(self._columns, "threshold", rule, units, limit=limit, reach=None),
+            )
             if units.fit is None:
                 continue
             reach = reach_times(units.fit, np.where(applies, limit, np.nan))
             within = reach.central <= self.horizon_end_years
             beyond = reach.low > self.horizon_end_years
             self._cycle(
-                "forecast", rule, units, limit, within & ~engaged, beyond | engaged, reach, engaged
+                "forecast",
+                rule.name,
+                units,
+                limit,
+                within & ~engaged,
+                beyond | engaged,
+                partial(self._columns, "forecast", rule, units, limit=limit, reach=reach),
+                engaged,
             )
+        self._geometry(local)
+
+    def _geometry(self, units: Units) -> None:
+        """The policy's geometry rules on the histories ``units`` (``alerts.geometry``)."""
+        data, rows = self.data, self.data.rows
+        if not self.geometry or units.count == 0:
+            return
+        at_start = running(rows.run_id, rows.mast_from, rows.span, data.geometry.height_start_mm)
+        at_end = running(rows.run_id, rows.mast_to, rows.span, data.geometry.height_end_mm)
+        row = units.row
+        mast_from = rows.mast_from[row]
+        length_m = rows.end_m[row] - rows.start_m[row]
+        masts = data.mast_geometry
+        if self.line_speeds:  # the configuration's, where the register gives none
+            line = self.session.scalar(
+                select(Line.code)
+                .join(Track, Track.line_id == Line.id)
+                .where(Track.id == data.track_id)
+            )
+            if line is not None and line in self.line_speeds:
+                speed = masts.line_speed_kmh
+                masts = replace(
+                    masts, line_speed_kmh=np.where(np.isnan(speed), self.line_speeds[line], speed)
+                )
+        for name, rule in self.geometry:
+            checked = check(
+                rule,
+                data.geometry,
+                masts,
+                row,
+                units.run_id,
+                mast_from,
+                length_m,
+                rows.direction[row],
+                at_start,
+                at_end,
+            )
+            self._cycle(
+                "geometry",
+                name,
+                units,
+                checked.limit,
+                checked.met(),
+                checked.clear(),
+                partial(self._geometry_columns, name, rule, units, checked=checked),
+            )
+
+    def _geometry_columns(
+        self, name: str, rule: GeometryRule, units: Units, unit: int, checked: Checked
+    ) -> dict[str, Any]:
+        """A geometry alert's columns for one unit."""
+        row = int(units.row[unit])
+        rows = self.data.rows
+        run_id = int(units.run_id[unit])
+        details: dict[str, Any] = {
+            "scope": units.scope,
+            "policy": name.rpartition("#")[0],
+            "rule_number": name.rpartition("#")[2],
+            "check": rule.check,
+            "criterion": rule.criterion,
+            "action": rule.action,
+            "run_id": run_id,
+            "run_wire": int(rows.wire[row]),
+            "run_started_at": iso_utc(self.data.run_started_at(run_id)),
+            "beyond_mm": round(float(checked.excess_mm[unit]), 1),
+        }
+        for key, values in (
+            ("measured_mm", checked.measured_mm),
+            ("design_mm", checked.design_mm),
+            ("line_speed_kmh", checked.line_speed_kmh),
+        ):
+            if np.isfinite(values[unit]):
+                details[key] = round(float(values[unit]), 1)
+        return {
+            **self._where(row),
+            "wire": int(units.position[unit]),
+            "rule": name,
+            "level": rule.level,
+            "kind": "geometry",
+            "value": float(checked.value[unit]),
+            "threshold": float(checked.limit[unit]),
+            "details": details,
+        }
+
+    def _where(self, row: int) -> dict[str, Any]:
+        data, rows = self.data, self.data.rows
+        mast_from, mast_to = int(rows.mast_from[row]), int(rows.mast_to[row])
+        return {
+            "mast_from": data.mast_code[mast_from] if mast_from >= 0 else None,
+            "mast_to": data.mast_code[mast_to] if mast_to >= 0 else None,
+            "start_chainage_m": float(rows.start_m[row]),
+            "end_chainage_m": float(rows.end_m[row]),
+            "span_measurement_id": int(rows.measurement_id[row]),
+        }
 
     def _cycle(
         self,
         kind: str,
-        rule: Rule,
+        rule_name: str,
         units: Units,
         limit: FloatArray,
         raise_: BoolArray,
         resolve: BoolArray,
-        reach: ReachTimes | None,
+        columns_of: Callable[[int], dict[str, Any]],
         engaged: BoolArray | None = None,
     ) -> BoolArray:
-        """Raise, update and resolve the alerts of one rule and kind over ``units``; returns
-        which units have an alert after it (or, for thresholds, have their condition met)."""
-        at, alerts = self.existing.active_of(kind, rule.name, units, self.data)
+        """Raise, update and resolve the alerts of one rule and kind over ``units`` (a unit's
+        columns: ``columns_of``); returns which units have an alert after it (or, for
+        thresholds, have their condition met)."""
+        at, alerts = self.existing.active_of(kind, rule_name, units, self.data)
         has_alert = np.zeros(units.count, dtype=bool)
         has_alert[at] = True
         for unit, alert in zip(at.tolist(), alerts, strict=True):
             if not np.isfinite(limit[unit]):
                 continue  # the rule no longer applies (another wire type): left as it is
-            columns = self._columns(kind, rule, units, unit, limit, reach)
+            columns = columns_of(unit)
             if resolve[unit]:
                 if kind == "threshold":
                     reason = "value back above the threshold"
+                elif kind == "geometry":
+                    reason = f"back within the limit by {GEOMETRY_MARGIN_MM} mm"
                 elif engaged is not None and engaged[unit]:
                     reason = "threshold met (the threshold alert takes over)"
                 else:
@@ -316,7 +435,7 @@ class _Track:
         for unit in np.flatnonzero(raise_ & ~has_alert).tolist():
             base = _base(
                 kind,
-                rule.name,
+                rule_name,
                 self.data.track_id,
                 int(units.position[unit]),
                 self._stretch(units, unit),
@@ -329,7 +448,7 @@ class _Track:
                 generation = number + 1
             self.inserts.append(
                 {
-                    **self._columns(kind, rule, units, unit, limit, reach),
+                    **columns_of(unit),
                     "track_id": self.data.track_id,
                     "status": "open",
                     "raised_at": self.now,
@@ -408,16 +527,8 @@ class _Track:
             }
         else:
             row = int(units.row[unit])
-            rows = data.rows
-            mast_from, mast_to = int(rows.mast_from[row]), int(rows.mast_to[row])
-            details["run_wire"] = int(rows.wire[row])
-            where = {
-                "mast_from": data.mast_code[mast_from] if mast_from >= 0 else None,
-                "mast_to": data.mast_code[mast_to] if mast_to >= 0 else None,
-                "start_chainage_m": float(rows.start_m[row]),
-                "end_chainage_m": float(rows.end_m[row]),
-                "span_measurement_id": int(rows.measurement_id[row]),
-            }
+            details["run_wire"] = int(data.rows.wire[row])
+            where = self._where(row)
         if kind == "forecast":
             assert reach is not None and units.fit is not None
             fit = units.fit
@@ -486,9 +597,11 @@ class _Setup:
     """What every track of one evaluation is evaluated with."""
 
     rules: list[Rule]
+    geometry: list[tuple[str, GeometryRule]]
     types: list[WireType]
     now: datetime
     horizon_days: float
+    line_speeds: Mapping[str, float]
 
     @classmethod
     def of(
@@ -497,9 +610,17 @@ class _Setup:
         wire_types: Mapping[str, WireType],
         now: datetime | None,
         horizon_days: float,
+        line_speeds: Mapping[str, float] | None,
     ) -> _Setup:
         types = [wire_types[n] for n in sorted(wire_types)]
-        return cls(rules_of(policy, types), types, now or datetime.now(UTC), horizon_days)
+        return cls(
+            rules_of(policy, types),
+            geometry_rules_of(policy),
+            types,
+            now or datetime.now(UTC),
+            horizon_days,
+            dict(line_speeds or {}),
+        )
 
     def evaluate(
         self,
@@ -513,7 +634,16 @@ class _Setup:
             # compiling each track's scan costs a tenth of a second and saves nothing on it
             session.execute(text("SET LOCAL jit = off"))
         for track_id in tracks:
-            track = _Track(session, track_id, self.rules, self.types, self.now, self.horizon_days)
+            track = _Track(
+                session,
+                track_id,
+                self.rules,
+                self.geometry,
+                self.types,
+                self.now,
+                self.horizon_days,
+                self.line_speeds,
+            )
             track.evaluate(run_ids, result)
             track.flush(result)
             result.runs += _mark_evaluated(session, track.data.run_id, run_ids, self.now)
@@ -557,16 +687,18 @@ def evaluate_alerts(
     run_ids: Sequence[int] | None = None,
     now: datetime | None = None,
     horizon_days: float = DEFAULT_HORIZON_DAYS,
+    line_speeds: Mapping[str, float] | None = None,
 ) -> Evaluation:
     """Evaluate ``policy`` on the spans runs ``run_ids`` measured (None: every span of the
     fleet) at ``now`` (default: the current time), forecasting ``horizon_days`` ahead, and
     mark the runs evaluated (those of ``run_ids``, or every run of the tracks evaluated).
+    ``line_speeds`` [km/h] by line code stand in for the register's ``line_speed_kmh``.
 
     Runs in the caller's transaction (see the module docstring for what it raises, updates and
     resolves). Raises ``UserError`` for a run id that does not exist, or a policy limit that a
     wire type cannot reach.
     """
-    setup = _Setup.of(policy, wire_types, now, horizon_days)
+    setup = _Setup.of(policy, wire_types, now, horizon_days, line_speeds)
     result = Evaluation(policy=policy.name)
     tracks = [t for t, _, _ in _tracks_of(session, run_ids, result)]
     setup.evaluate(session, tracks, run_ids, result)
@@ -583,6 +715,7 @@ def evaluate_tracks(
     now: datetime | None = None,
     horizon_days: float = DEFAULT_HORIZON_DAYS,
     notifications: NotificationConfig | None = None,
+    line_speeds: Mapping[str, float] | None = None,
 ) -> Evaluation:
     """``evaluate_alerts`` with each track in a transaction of its own, the new alerts'
     notifications queued in it (``notifications``: the channels; None: not queued).
@@ -591,7 +724,7 @@ def evaluate_tracks(
     (line and track codes, the reason); the other tracks are still evaluated and committed.
     Announce the new alerts once it returns (``announce_alerts``).
     """
-    setup = _Setup.of(policy, wire_types, now, horizon_days)
+    setup = _Setup.of(policy, wire_types, now, horizon_days, line_speeds)
     result = Evaluation(policy=policy.name)
     with session_scope(engine, read_only=True) as session:
         tracks = _tracks_of(session, run_ids, result)
@@ -615,9 +748,10 @@ def evaluate_all(
 ) -> Evaluation | None:
     """Every span of the fleet with the configured policy (``[limits]``) and horizon
     (``[maintenance]``) at ``now``, a track at a time with the new alerts' notifications
-    queued (``evaluate_tracks``): the scheduler's job. None without a policy. Announce the new
+    queued (``evaluate_tracks``): the scheduler's job. None without a policy (no ``[limits]``
+    and no wire types for the standard limits). Announce the new
     alerts once it returns (``announce_alerts``)."""
-    policy = choose_policy(settings, registry.limit_policies())
+    policy = choose_policy(settings, registry.limit_policies(), wire_types=registry.wire_types())
     if policy is None:
         return None
     return evaluate_tracks(
@@ -627,6 +761,7 @@ def evaluate_all(
         now=now,
         horizon_days=horizon_days(settings),
         notifications=notification_config(settings),
+        line_speeds=line_speeds(settings),
     )
 
 
@@ -634,23 +769,25 @@ def evaluate_all(
 class RunAlerting:
     """What a run's alerts are evaluated with once it is stored: the wear-limit policy (None:
     none configured), checked against the wire types before the run is processed, and the
-    planning horizon [days]."""
+    planning horizon [days] and the configured line speeds [km/h] by line code."""
 
     policy: LimitPolicy | None
     wire_types: Mapping[str, WireType]
     horizon_days: float
+    line_speeds: Mapping[str, float] = field(default_factory=dict)
 
 
 def run_alerting(
     settings: Settings, registry: PluginRegistry, policy: LimitPolicy | None = None
 ) -> RunAlerting:
-    """The alerting of the runs a command stores: ``policy``, else the config's ``[limits]``;
-    raises ``UserError`` for a limit a wire type cannot reach, before anything is written."""
-    policy = policy or choose_policy(settings, registry.limit_policies())
+    """The alerting of the runs a command stores: ``policy``, else the config's ``[limits]``,
+    else the wire types' standard limits (``standard_policy``); raises ``UserError`` for a
+    limit a wire type cannot reach, before anything is written."""
     wire_types = registry.wire_types()
+    policy = policy or choose_policy(settings, registry.limit_policies(), wire_types=wire_types)
     if policy is not None:
         check_policy(policy, wire_types)
-    return RunAlerting(policy, wire_types, horizon_days(settings))
+    return RunAlerting(policy, wire_types, horizon_days(settings), line_speeds(settings))
 
 
 def evaluate_stored_run(
@@ -672,6 +809,7 @@ def evaluate_stored_run(
         run_ids=[run_id],
         horizon_days=alerting.horizon_days,
         notifications=notification_config(settings),
+        line_speeds=alerting.line_speeds,
     )
     announce_alerts(engine, registry, result.new)
     return result
@@ -683,7 +821,14 @@ def run_alerts_lines(result: Evaluation | None) -> list[str]:
         return ["alerts     not evaluated: no wear-limit policy ([limits] policy in the config)"]
     if result.failed:
         return ["alerts     not evaluated"]
+    standard = (
+        ["           no [limits] policy in the config: each wire type's standard limit "
+         "(catenary wire-types NAME)"]
+        if result.policy == STANDARD_POLICY
+        else []
+    )  # fmt: skip
     return [
         f"alerts     {result.summary()} (policy {result.policy})",
+        *standard,
         *(f"           {note}" for note in result.notes),
     ]

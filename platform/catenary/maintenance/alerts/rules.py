@@ -2,15 +2,17 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from catenary.arrays import BoolArray, FloatArray, IntArray, take
 from catenary.config import Settings
 from catenary.errors import UserError
-from catenary.limits import LimitPolicy, LimitRule, thresholds
+from catenary.limits import GeometryRule, LimitPolicy, LimitRule, thresholds
 from catenary.storage.models import NAME_LENGTH
 from catenary.wiretype import WireType
 
@@ -20,7 +22,9 @@ __all__ = [
     "SECTION",
     "Rule",
     "check_policy",
+    "geometry_rules_of",
     "horizon_days",
+    "line_speeds",
     "rules_of",
 ]
 
@@ -31,14 +35,13 @@ DEFAULT_HORIZON_DAYS = 365.0
 LOCAL, SECTION = "local", "anchor_section_average"
 """The rules' scopes: one span's minimum, an anchor section's average."""
 
-_MAINTENANCE_KEYS = {"horizon_days"}
+_MAINTENANCE_KEYS = {"horizon_days", "line_speed_kmh"}
+_MAX_SPEED_KMH = 1000.0
 
 
-def horizon_days(settings: Settings) -> float:
-    """The planning horizon [days]: ``[maintenance] horizon_days``, default 365."""
-    section = settings.sections.get("maintenance")
-    if section is None:
-        return DEFAULT_HORIZON_DAYS
+def _maintenance(settings: Settings) -> tuple[Mapping[str, Any], str]:
+    """The config's ``[maintenance]`` section (empty without one) and its name for errors."""
+    section = settings.sections.get("maintenance", {})
     where = f"{settings.config_path or 'config'}: [maintenance]"
     if not isinstance(section, Mapping):
         raise UserError(f"{where} must be a table")
@@ -46,6 +49,33 @@ def horizon_days(settings: Settings) -> float:
     if unknown:
         known = ", ".join(sorted(_MAINTENANCE_KEYS))
         raise UserError(f"{where}: unknown key {unknown[0]!r} (known: {known})")
+    return section, where
+
+
+def line_speeds(settings: Settings) -> dict[str, float]:
+    """Each line's speed [km/h] by line code: ``[maintenance] line_speed_kmh = {L100 = 160}``
+    (empty without one); the geometry rules use it where the register gives no
+    ``line_speed_kmh``."""
+    section, where = _maintenance(settings)
+    table = section.get("line_speed_kmh", {})
+    if not isinstance(table, Mapping):
+        raise UserError(f"{where}: line_speed_kmh must be a table of line code = km/h")
+    speeds: dict[str, float] = {}
+    for line, value in table.items():
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            value = math.nan
+        if not 0 < value <= _MAX_SPEED_KMH:
+            raise UserError(
+                f"{where}: line_speed_kmh.{line} must be a speed from 0 to "
+                f"{_MAX_SPEED_KMH:g} km/h, not {table[line]!r}"
+            )
+        speeds[str(line)] = float(value)
+    return speeds
+
+
+def horizon_days(settings: Settings) -> float:
+    """The planning horizon [days]: ``[maintenance] horizon_days``, default 365."""
+    section, where = _maintenance(settings)
     value = section.get("horizon_days", DEFAULT_HORIZON_DAYS)
     if isinstance(value, bool) or not isinstance(value, int | float) or not 1 <= value <= 36525:
         raise UserError(
@@ -92,6 +122,11 @@ def rules_of(policy: LimitPolicy, wire_types: Sequence[WireType]) -> list[Rule]:
         Rule(n, rule, f"{policy.name}#{n}", thickness[n], fraction[n])
         for n, rule in enumerate(policy.rules, 1)
     ]
+
+
+def geometry_rules_of(policy: LimitPolicy) -> list[tuple[str, GeometryRule]]:
+    """The policy's geometry rules by their ``Alert.rule`` name, ``"policy#g<number>"``."""
+    return [(f"{policy.name}#g{n}", rule) for n, rule in enumerate(policy.geometry, 1)]
 
 
 def check_policy(policy: LimitPolicy, wire_types: Mapping[str, WireType]) -> None:

@@ -24,6 +24,7 @@ from sqlalchemy.orm import Session, aliased
 
 from catenary.arrays import FloatArray, IntArray, take
 from catenary.domain import REPAIR_KINDS
+from catenary.maintenance.alerts.geometry import GeometryRows, MastGeometry
 from catenary.maintenance.alerts.rules import LOCAL, SECTION
 from catenary.maintenance.forecast import (
     WearFit,
@@ -55,8 +56,21 @@ def _index_in(known: NDArray[np.generic], values: NDArray[np.generic]) -> IntArr
     return take(order, _lookup(known[order], values), -1)
 
 
+_NONE = -1.0e300  # a NULL of a nullable column as ``fetch_columns`` reads it
+_GEOMETRY_COLUMNS = {
+    "height_min_mm": SpanMeasurement.height_min_mm,
+    "height_max_mm": SpanMeasurement.height_max_mm,
+    "stagger_min_mm": SpanMeasurement.stagger_min_mm,
+    "stagger_max_mm": SpanMeasurement.stagger_max_mm,
+    "height_start_mm": SpanMeasurement.height_at_start_mm,
+    "height_end_mm": SpanMeasurement.height_at_end_mm,
+    "stagger_start_mm": SpanMeasurement.stagger_at_start_mm,
+}
+
+
 class TrackData:
-    """A track's masts and anchor sections, complete runs, span rows and repairs.
+    """A track's masts and anchor sections, complete runs, span rows and repairs, and their
+    geometry (``mast_geometry``, ``geometry``: rows as ``rows``).
 
     A span row names its masts and wire type by name; the rows are matched to the masts and
     wire types by a key: on PostgreSQL the names' 64-bit hash (``hashtextextended``: the server
@@ -70,7 +84,16 @@ class TrackData:
         self.hashed = session.get_bind().dialect.name == "postgresql"
         key = func.hashtextextended(Mast.code, 0) if self.hashed else Mast.id
         masts = session.execute(
-            select(Mast.id, Mast.code, Mast.chainage_m, Mast.anchor_section, key.label("key"))
+            select(
+                Mast.id,
+                Mast.code,
+                Mast.chainage_m,
+                Mast.anchor_section,
+                Mast.design_stagger_mm,
+                Mast.design_height_mm,
+                Mast.line_speed_kmh,
+                key.label("key"),
+            )
             .where(Mast.track_id == track_id)
             .order_by(Mast.chainage_m)
         ).all()
@@ -79,6 +102,15 @@ class TrackData:
             raise RuntimeError(f"track {track_id}: two mast codes share a 64-bit hash")
         self.mast_code: list[str] = [m.code for m in masts]
         self.mast_chainage = np.array([m.chainage_m for m in masts], dtype=np.float64)
+
+        def given(values: list[float | None]) -> FloatArray:
+            return np.array([np.nan if v is None else v for v in values], dtype=np.float64)
+
+        self.mast_geometry = MastGeometry(
+            design_stagger_mm=given([m.design_stagger_mm for m in masts]),
+            design_height_mm=given([m.design_height_mm for m in masts]),
+            line_speed_kmh=given([m.line_speed_kmh for m in masts]),
+        )
         self._sections([m.anchor_section for m in masts])
         runs = session.execute(
             select(Run.id, Run.started_at, Run.direction)
@@ -166,6 +198,10 @@ class TrackData:
                 sm.mean_residual_thickness_mm,
                 sm.samples,
                 cast(sm.stagger_min_mm + sm.stagger_max_mm, Float).label("stagger_sum_mm"),
+                *(
+                    cast(func.coalesce(column, _NONE), Float).label(name)
+                    for name, column in _GEOMETRY_COLUMNS.items()
+                ),
             )
             # through the track's runs: each run's rows lie together, read in their order
             .select_from(Run)
@@ -180,6 +216,12 @@ class TrackData:
         run = _lookup(self.run_id, c["run_id"])
         keep = np.flatnonzero(run >= 0)  # a run completed since the runs were read: left out
         run = run[keep]
+
+        def measured(name: str) -> FloatArray:
+            values = c[name][keep].astype(np.float64)
+            return np.where(values == _NONE, np.nan, values)
+
+        self.geometry = GeometryRows(**{name: measured(name) for name in _GEOMETRY_COLUMNS})
 
         def local(key: NDArray[np.generic], known: IntArray) -> IntArray:
             """Index into ``known`` of each kept row's ``key``; -1 for none."""
