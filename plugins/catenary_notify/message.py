@@ -22,7 +22,7 @@ def summary(alert: AlertRecord) -> str:
         level += f" ({alert.kind})"
     return (
         f"{level}: line {alert.line} track {alert.track}, {mast_range(alert)}, "
-        f"wire {alert.wire}: {alert.value:.3f} vs threshold {alert.threshold:.3f} "
+        f"wire position {alert.wire}: {alert.value:.3f} vs threshold {alert.threshold:.3f} "
         f"({alert.rule})"
     )
 
@@ -39,7 +39,7 @@ def body(alert: AlertRecord) -> str:
             "Chainage",
             f"{alert.start_chainage_m:.1f} m to {alert.end_chainage_m:.1f} m",
         ),
-        ("Wire", alert.wire),
+        ("Position", alert.wire),
         ("Value", f"{alert.value:.3f} (threshold {alert.threshold:.3f})"),
         ("Kind", alert.kind),
         ("Rule", alert.rule),

@@ -58,6 +58,7 @@ EVENT_SCHEMA = pa.schema(
         ("from_marker", pa.string()),
         ("to_marker", pa.string()),
         ("wire", pa.int64()),
+        ("wire_position", pa.int64()),
         ("wire_type", pa.string()),
         ("measure", pa.string()),
         # every measure is in mm: its decimals in CSV (catenary.measurement.spreadsheet)
@@ -123,6 +124,7 @@ def _events(session: Session, run: Run) -> pa.Table:
                     "from_marker": s.mast_from,
                     "to_marker": s.mast_to,
                     "wire": s.wire,
+                    "wire_position": s.wire_position,
                     "wire_type": s.wire_type,
                     "measure": measure,
                     "value": getattr(s, measure),

@@ -123,7 +123,7 @@ def _span_cells(s: SpanMeasurement) -> list[Cell | str]:
         Cell(_masts(s), keep=True),
         number(s.start_chainage_m, 1),
         number(s.end_chainage_m, 1),
-        Cell(str(s.wire), numeric=True),
+        Cell(str(s.wire_position), numeric=True),
         s.wire_type,
         number(s.min_residual_thickness_mm),
         number(s.min_at_chainage_m, 1),
@@ -266,7 +266,7 @@ def _figures(
         Marker(s.min_at_chainage_m, s.min_residual_thickness_mm, wire_colour(s.wire)) for s in spans
     ]
     panels = [
-        Panel(label, tuple(Series(w, q, wire_colour(w), f"wire {w}") for w in grid.wires))
+        Panel(label, tuple(Series(w, q, wire_colour(w), f"run wire {w}") for w in grid.wires))
         for q, label in PANELS
     ]
     lines = _limit_lines(limits)
@@ -305,7 +305,16 @@ def _exceedance_section(spans: Sequence[SpanMeasurement], limits: _Limits) -> st
                 f"lowest minimum residual thickness of {len(spans)}."
             ),
             html.table(
-                ["masts", "from m", "to m", "wire", "wire type", "min mm", "at m", "mean mm"],
+                [
+                    "masts",
+                    "from m",
+                    "to m",
+                    "wire position",
+                    "wire type",
+                    "min mm",
+                    "at m",
+                    "mean mm",
+                ],
                 rows,
                 table_id="exceedances",
             ),
@@ -348,7 +357,7 @@ def _exceedance_section(spans: Sequence[SpanMeasurement], limits: _Limits) -> st
                 "masts",
                 "from m",
                 "to m",
-                "wire",
+                "wire position",
                 "wire type",
                 "min mm",
                 "at m",
@@ -381,7 +390,7 @@ def _span_section(spans: Sequence[SpanMeasurement], limits: _Limits) -> str:
                 number(s.start_chainage_m, 1),
                 number(s.end_chainage_m, 1),
                 number(s.end_chainage_m - s.start_chainage_m, 1),
-                Cell(str(s.wire), numeric=True),
+                Cell(str(s.wire_position), numeric=True),
                 s.wire_type,
                 number(s.min_residual_thickness_mm),
                 number(s.min_at_chainage_m, 1),
@@ -407,7 +416,7 @@ def _span_section(spans: Sequence[SpanMeasurement], limits: _Limits) -> str:
                 "from m",
                 "to m",
                 "length m",
-                "wire",
+                "wire position",
                 "wire type",
                 "min mm",
                 "at m",
@@ -601,7 +610,7 @@ def _evidence_section(
         figures.append(
             '<figure class="evidence"><img alt="line-scan crop" style="width: 100%; '
             f'height: 10em; image-rendering: pixelated" src="data:image/png;base64,{data}">'
-            f"<figcaption>{html.escape(_masts(s))}, wire {s.wire}: "
+            f"<figcaption>{html.escape(_masts(s))}, wire position {s.wire_position}: "
             f"{s.min_residual_thickness_mm:.2f} mm at chainage {s.min_at_chainage_m:.1f} m"
             "</figcaption></figure>"
         )

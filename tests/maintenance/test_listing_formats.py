@@ -64,10 +64,10 @@ def test_alerts_list_as_json_is_every_alert_unrounded(worn: str, engine: Engine)
         for record in listed:
             alert = stored[record["id"]]
             assert record["value"] == alert.value and record["threshold"] == alert.threshold
-            assert record["line"] == alert.track.line.code and record["wire"] == alert.wire
+            assert record["line"] == alert.track.line.code and record["wire_position"] == alert.wire
             assert record["raised_at"].endswith("+00:00")
             assert record["resolved_at"] is None
-    assert list(listed[0])[:4] == ["id", "line", "track", "wire"]
+    assert list(listed[0])[:4] == ["id", "line", "track", "wire_position"]
 
 
 def test_alerts_as_geojson_follow_the_masts_and_leave_out_the_unplaced(worn: str) -> None:

@@ -166,7 +166,7 @@ def _alert_record(alert: Alert) -> dict[str, Any]:
         "id": alert.id,
         "line": alert.track.line.code,
         "track": alert.track.code,
-        "wire": alert.wire,
+        "wire_position": alert.wire,
         "mast_from": alert.mast_from,
         "mast_to": alert.mast_to,
         "start_chainage_m": alert.start_chainage_m,
@@ -272,11 +272,12 @@ def list_command(
         else:
             for alert in found:
                 section = (alert.details or {}).get("anchor_section")
+                within = f" (section {section})" if section else ""
                 click.echo(
                     printable(
                         f"{alert.id:>6}  {alert.level:<8} {alert.kind:<9} {alert.status:<12} "
                         f"{alert.track.line.code}/{alert.track.code}  {_where(alert)}"
-                        f"{f' (section {section})' if section else ''}, wire {alert.wire}: "
+                        f"{within}, wire position {alert.wire}: "
                         f"{_what(alert)}; {(alert.details or {}).get('action', alert.rule)}"
                     )
                 )
@@ -540,7 +541,7 @@ def record_command(
             note=note,
         )
     where = f"masts {masts[0]} to {masts[1]} " if masts[0] else ""
-    wires = "all wires" if wire is None else f"wire {wire}"
+    wires = "all wires" if wire is None else f"wire position {wire}"
     resolved = ", ".join(str(i) for i in recorded.resolved)
     click.echo(
         f"recorded {kind} on line {line} track {track}, {where}({low:.1f} to {high:.1f} m), "

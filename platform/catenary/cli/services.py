@@ -83,7 +83,7 @@ def _status_line(row: AlertNotification, configured: set[str]) -> str:
     error = f": {row.last_error}" if row.last_error else ""
     return (
         f"{row.id:>6}  alert {alert.id} {alert.level} line {alert.track.line.code} track "
-        f"{alert.track.code} {masts} wire {alert.wire} -> {row.notifier}{unknown}: "
+        f"{alert.track.code} {masts} wire position {alert.wire} -> {row.notifier}{unknown}: "
         f"{row.status}, {row.attempts} attempt(s), {due}{error}"
     )
 
@@ -99,7 +99,7 @@ def _status_record(row: AlertNotification, configured: set[str]) -> dict[str, An
         "track": alert.track.code,
         "mast_from": alert.mast_from,
         "mast_to": alert.mast_to,
-        "wire": alert.wire,
+        "wire_position": alert.wire,
         "channel": row.notifier,
         "channel_configured": row.notifier in configured,
         "status": row.status,

@@ -152,7 +152,9 @@ class ReportRequest(_KeyAccess):
 @dataclass(frozen=True)
 class AlertRecord(_KeyAccess):
     """A committed alert as plugins see it (a notifier's ``send``, the ``catenary_alert_raised``
-    hook): its stored fields and its line and track codes, in JSON types (``as_json``)."""
+    hook): its stored fields and its line and track codes, in JSON types (``as_json``).
+    ``wire`` is the wire's position in its span (``catenary.positions``), which the JSON
+    names ``wire_position``."""
 
     id: int
     level: str
@@ -200,7 +202,7 @@ class AlertRecord(_KeyAccess):
         """The record as a JSON object (what the webhook posts as ``alert``)."""
         record = dataclasses.asdict(self)
         record["details"] = dict(self.details)
-        return record
+        return {("wire_position" if k == "wire" else k): v for k, v in record.items()}
 
 
 @dataclass(frozen=True)

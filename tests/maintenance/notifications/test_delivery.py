@@ -138,7 +138,7 @@ def test_sent_once_with_the_alert_and_the_channel_settings(
     ((alert, channel_settings),) = fake.sent
     assert channel_settings == {"to": "ops"}
     assert alert["line"] == "L100" and alert["track"] == "1"
-    assert (alert["mast_from"], alert["mast_to"], alert["wire"]) == ("M1", "M2", 0)
+    assert (alert["mast_from"], alert["mast_to"], alert["wire_position"]) == ("M1", "M2", 0)
     assert (alert["value"], alert["threshold"]) == (9.9, 10.0)
     assert alert["raised_at"] == "2024-05-06T07:08:09+00:00"
     assert alert["details"] == {"forecast_date": "2025-01-31"}

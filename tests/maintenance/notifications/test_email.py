@@ -88,8 +88,8 @@ def test_the_message_names_the_alert(
     assert received.recipients == ["overhead-line@example.org", "planner@example.org"]
     mail = received.message
     assert mail["Subject"] == (
-        "[catenary] CRITICAL: line L100 track 1, masts M17 to M18, wire 1: 8.620 vs threshold "
-        "8.700 (db-ril-997#3)"
+        "[catenary] CRITICAL: line L100 track 1, masts M17 to M18, wire position 1: 8.620 vs "
+        "threshold 8.700 (db-ril-997#3)"
     )
     assert mail["To"] == "overhead-line@example.org, planner@example.org"
     assert mail.get_content_type() == "text/plain"
@@ -100,7 +100,7 @@ def test_the_message_names_the_alert(
         "Track:     1",
         "Masts:     M17 to M18",
         "Chainage:  12345.5 m to 12398.0 m",
-        "Wire:      1",
+        "Position:  1",
         "Value:     8.620 (threshold 8.700)",
         "Rule:      db-ril-997#3",
         f"Alert:     {alert_id} (open)",

@@ -47,7 +47,8 @@ def test_deliver_retry_and_status(
     result = catenary(config, database_url, "notify", "status")
     assert result.exit_code == 0, result.output
     row, summary = result.output.splitlines()
-    assert f"alert {alert_id} urgent line L100 track 1 masts M1-M2 wire 0 -> hook: failed, " in row
+    expected = f"alert {alert_id} urgent line L100 track 1 masts M1-M2 wire position 0 -> hook: "
+    assert f"{expected}failed, " in row
     assert "1 attempt(s), next at 20" in row
     assert row.endswith("answered HTTP 500 Internal Server Error")
     assert summary == "0 pending, 1 failed"
@@ -110,7 +111,7 @@ def test_status_escapes_control_characters_of_stored_names(
     result = catenary(config, database_url, "notify", "status")
     assert result.exit_code == 0, result.output
     row, _summary = result.output.splitlines()
-    assert "masts M1\\x1b[2J-M2\\r\\n wire 0 -> hook" in row
+    assert "masts M1\\x1b[2J-M2\\r\\n wire position 0 -> hook" in row
 
 
 def test_requeue_queues_again_those_that_gave_up(

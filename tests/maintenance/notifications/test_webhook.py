@@ -65,7 +65,7 @@ def test_the_alert_is_posted_as_json(
     body = request["json"]
     assert body["event"] == "alert"
     assert body["text"] == (
-        "PLAN (forecast): line L100 track 1, masts M1 to M2, wire 0: 9.900 vs threshold "
+        "PLAN (forecast): line L100 track 1, masts M1 to M2, wire position 0: 9.900 vs threshold "
         "10.000 (db-ril-997#1)"
     )
     assert body["alert"] == {
@@ -75,7 +75,7 @@ def test_the_alert_is_posted_as_json(
         "status": "open",
         "line": "L100",
         "track": "1",
-        "wire": 0,
+        "wire_position": 0,
         "mast_from": "M1",
         "mast_to": "M2",
         "start_chainage_m": 1000.0,
