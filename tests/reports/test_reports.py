@@ -219,15 +219,15 @@ def test_run_report_holds_facts_plots_exceedances_and_every_span(
         assert float(row[8]) == pytest.approx(limits[row[0]])
 
 
-def test_run_report_without_a_policy_lists_the_thinnest_spans(
+def test_run_report_without_a_policy_judges_by_the_standard_limits(
     database: str, tmp_path: Path
 ) -> None:
+    """No [limits]: each wire type's standard limit, as alerts are evaluated out of the box."""
     out = tmp_path / "run.html"
     assert report(database, "run", "latest", "-o", out).exit_code == 0
     page = Page(out.read_text())
-    assert "Thinnest spans" in page.headings
-    values = [float(row[5]) for row in page.body("exceedances")]
-    assert values == sorted(values) and len(values) == len(spans_of(database, 2))
+    assert "Limit exceedances" in page.headings and "Thinnest spans" not in page.headings
+    assert "standard-limits" in out.read_text()
 
 
 def test_run_report_splits_the_chainage_into_figures(database: str, tmp_path: Path) -> None:
@@ -255,6 +255,8 @@ def test_run_report_has_contents_and_print_styles(database: str, tmp_path: Path)
         "#plot-2",
         "#plot-3",
         "#exceedance",
+        "#evidence",
+        "#previous-run",
         "#span-table",
     ]
     assert all(link[1:] in page.ids for link in links)
@@ -373,7 +375,7 @@ def test_maintenance_table_is_the_visits(alerts: str, tmp_path: Path, suffix: st
     else:
         with out.open() as handle:
             rows = list(csv.DictReader(handle))
-    assert [(r["mast_from"], str(r["wire"]), r["level"]) for r in rows] == [
+    assert [(r["mast_from"], str(r["wire_position"]), r["level"]) for r in rows] == [
         ("12/01", "0", "plan"),
         ("12/02", "0", "critical"),
         ("12/03", "0", "urgent"),
@@ -411,8 +413,8 @@ def test_linear_events_one_row_per_span_wire_and_measure(
         with out.open() as handle:
             rows = list(csv.DictReader(handle))
     assert list(rows[0]) == [
-        "line", "track", "from_m", "to_m", "from_marker", "to_marker", "wire", "wire_type",
-        "measure", "value", "unit", "at_m", "run_id", "date",
+        "line", "track", "from_m", "to_m", "from_marker", "to_marker", "wire", "wire_position",
+        "wire_type", "measure", "value", "unit", "at_m", "run_id", "date",
     ]  # fmt: skip
     spans = sorted(spans_of(database, 1), key=lambda s: (s.start_chainage_m, s.wire))
     assert len(rows) == len(spans) * len(MEASURES)

@@ -28,11 +28,13 @@ def report_request(
     options: Mapping[str, str] | None = None,
 ) -> ReportRequest:
     """The request a reporter's ``write`` takes; ``policy`` names a preset (default: the
-    config's ``[limits]``)."""
+    config's ``[limits]``, else each wire type's standard limit, as alerts are evaluated)."""
     return ReportRequest(
         settings=settings,
         registry=registry,
-        policy=choose_policy(settings, registry.limit_policies(), policy),
+        policy=choose_policy(
+            settings, registry.limit_policies(), policy, wire_types=registry.wire_types()
+        ),
         runs=tuple(runs),
         line=line,
         track=track,
