@@ -31,7 +31,7 @@ from catenary.errors import UserError
 from catenary.maintenance.alerts import horizon_days
 from catenary.maintenance.forecast import CONFIDENCE, MIN_RUNS, moment_of, years_since_epoch
 from catenary.maintenance.trends import TrackTrends, rate_interval, track_trends
-from catenary.measurement.samples import export_table
+from catenary.measurement.samples import TABLE_SUFFIXES, export_table
 from catenary.plugins import ReportRequest
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Line, Track
@@ -184,6 +184,9 @@ def _listed(tracks: list[tuple[str, str, TrackTrends]], horizon_end: float, top:
     return _Listed(entries, due_pairs, int(rate.shape[0]))
 
 
+_MM = {"unit": "mm"}
+"""A wear rate's figures are millimetres (per year): in CSV to 0.001 mm, as every length."""
+
 _SCHEMA = pa.schema(
     [
         ("line", pa.string()),
@@ -196,9 +199,9 @@ _SCHEMA = pa.schema(
         ("wire_type", pa.string()),
         ("runs", pa.int64()),
         ("latest_min_mm", pa.float64()),
-        ("wear_rate_mm_per_year", pa.float64()),
-        ("wear_rate_low_mm_per_year", pa.float64()),
-        ("wear_rate_high_mm_per_year", pa.float64()),
+        pa.field("wear_rate_mm_per_year", pa.float64(), metadata=_MM),
+        pa.field("wear_rate_low_mm_per_year", pa.float64(), metadata=_MM),
+        pa.field("wear_rate_high_mm_per_year", pa.float64(), metadata=_MM),
         ("rank", pa.int64()),
         ("limit_level", pa.string()),
         ("limit_mm", pa.float64()),
@@ -350,7 +353,7 @@ def _html(listed: _Listed, top: int, facts: list[tuple[str, str]]) -> str:
 def write(raw: ReportRequest, output: Path) -> Path:
     """Write the trend report of ``raw['line']`` (every line when None) to ``output``."""
     request = parse_request("trends", raw, line=True, options=OPTIONS)
-    suffix = check_output(output, (".html", ".csv", ".parquet"))
+    suffix = check_output(output, (".html", *TABLE_SUFFIXES))
     top = int(request.options["top"])
     horizon = horizon_days(request.settings)
     now = datetime.now(UTC)

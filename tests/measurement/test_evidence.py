@@ -29,7 +29,7 @@ from catenary.storage.models import Run
 from catenary.storage.store import open_store
 
 
-def test_span_minima_keep_each_spans_and_wires_thinnest_sample_over_blocks() -> None:
+def test_span_minima_keep_each_spans_and_wires_least_value_over_blocks() -> None:
     minima = SpanMinima()
     minima.add(
         np.array([0, 0, 1, 0]), np.array([0, 1, 0, 0]), np.array([11.0, 10.0, np.nan, 10.5]),
@@ -112,9 +112,14 @@ def test_process_stores_a_crop_of_every_span_with_the_wire_at_its_centre(
     with Session(create_engine(database_url)) as session:
         (run,) = session.scalars(select(Run))
         assert run.processing is not None
-        keys = {evidence_key(run.processing.uuid, s.span, s.wire) for s in run.span_measurements}
-    assert keys and set(store.keys("evidence")) == keys
-    assert f"evidence   {len(keys)} image crops in " in result.output
+        made, rows = run.processing.uuid, list(run.span_measurements)
+    keys = {evidence_key(made, s.span, s.wire) for s in rows}
+    at_masts = {evidence_key(made, s.span, s.wire, "mast") for s in rows}
+    stored = set(store.keys("evidence"))
+    # each span's thinnest point; and its first mast where the wire ran within half a metre
+    assert keys and keys <= stored and stored - keys <= at_masts and stored - keys
+    assert f"evidence   {len(stored)} image crops in " in result.output
+    keys = stored
     width = 2 * HALF_WIDTH_PX + 1
     for key in keys:
         with store.open_input(key) as handle:

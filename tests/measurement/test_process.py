@@ -409,14 +409,14 @@ def test_export_gives_exactly_the_formats_columns(
         assert tuple(rows[0]) == columns and len(rows) - 1 == table.num_rows > 0
     assert SPAN_COLUMNS == (
         "span", "mast_from", "mast_to", "start_chainage_m", "end_chainage_m", "wire",
-        "wire_type", "min_residual_thickness_mm", "min_at_chainage_m",
+        "wire_position", "wire_type", "min_residual_thickness_mm", "min_at_chainage_m",
         "mean_residual_thickness_mm", "height_min_mm", "height_max_mm", "stagger_min_mm",
         "stagger_max_mm", "samples",
     )  # fmt: skip
     bad = invoke("export", "7", "--what", "spans", "-o", tmp_path / "x.csv", "--db", database)
     assert "no run 7" in one_line_error(bad)
     bad = invoke("export", "1", "--what", "spans", "-o", tmp_path / "x.txt", "--db", database)
-    assert ".csv or .parquet" in one_line_error(bad)
+    assert "must be .csv, .xlsx, .parquet or .geojson" in one_line_error(bad)
 
 
 @pytest.fixture(scope="module")

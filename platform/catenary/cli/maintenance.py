@@ -330,7 +330,8 @@ def evidence_command(ctx: click.Context, alert_id: int, output: Path) -> None:
         measured = alert.span_measurement
         if measured is None:
             raise UserError(f"alert {alert_id} is on no span measurement (its run was deleted)")
-        key = evidence_key(measured.processing.uuid, measured.span, measured.wire)
+        point = "mast" if alert.kind == "geometry" else "minimum"  # where it was measured
+        key = evidence_key(measured.processing.uuid, measured.span, measured.wire, point)
     store = open_store(app.settings)
     if not store.exists(key):
         raise UserError(

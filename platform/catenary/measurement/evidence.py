@@ -1,15 +1,17 @@
 """Image evidence: the line-scan images around a run's worst points, kept small in the store.
 
-For each span and wire, ``process`` finds the sample with the least residual thickness
-(``SpanMinima``, over the trusted samples) and, while the run file is at hand, cuts a crop of
-every camera's lines around it: the scans within ``HALF_LENGTH_M`` of it along the track and,
-across the line, ``HALF_WIDTH_PX`` pixels either side of where each camera sees the point
+For each span and wire, ``process`` finds the sample with the least residual thickness, and
+the one nearest the span's first mast within ``HALF_LENGTH_M`` (where the geometry at a mast is
+measured), over the trusted samples (``SpanMinima``), and, while the run file is at hand, cuts
+a crop of every camera's lines around each: the scans within ``HALF_LENGTH_M`` of it along the
+track and, across the line, ``HALF_WIDTH_PX`` pixels either side of where each camera sees the point
 (the processor tells: ``ImageLocator``; without it, the whole line narrowed to
 ``NARROW_WIDTH_PX`` by averaging). The cameras' crops lie side by side in one 8-bit greyscale
 PNG (scans downwards, in run order; a grey bar between cameras; each camera's levels
 stretched to the full range, so that a dark night scene shows), stored under
-``evidence/PROCESSING/span-S-wire-W.png`` (``evidence_key``): a run report and every alert on
-that span read it, wherever the run was processed (``catenary push`` sends it along).
+``evidence/PROCESSING/span-S-wire-W.png`` and ``...-mast.png`` (``evidence_key``): a run
+report and every alert on that span (a geometry alert: the mast's) read it, wherever the run
+was processed (``catenary push`` sends it along).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from catenary.domain import ScanBlock
 
 __all__ = [
     "EVIDENCE_PREFIX",
+    "POINTS",
     "EvidencePoint",
     "SpanMinima",
     "crop_image",
@@ -59,9 +62,17 @@ def evidence_prefix(processing_uuid: str) -> str:
     return f"{EVIDENCE_PREFIX}/{processing_uuid}"
 
 
-def evidence_key(processing_uuid: str, span: int, wire: int) -> str:
-    """The store key of the crop at span ``span``'s (its stored number) minimum of ``wire``."""
-    return f"{evidence_prefix(processing_uuid)}/span-{span}-wire-{wire}.png"
+POINTS = ("minimum", "mast")
+"""Where a span's crops are: its thinnest point, and its first mast."""
+
+
+def evidence_key(processing_uuid: str, span: int, wire: int, point: str = "minimum") -> str:
+    """The store key of the crop of ``wire`` at span ``span``'s (its stored number) thinnest
+    point, or at its first mast (``point``: one of ``POINTS``)."""
+    if point not in POINTS:
+        raise ValueError(f"no crop point {point!r} (one of {', '.join(POINTS)})")
+    at = "" if point == "minimum" else f"-{point}"
+    return f"{evidence_prefix(processing_uuid)}/span-{span}-wire-{wire}{at}.png"
 
 
 @dataclass(frozen=True)
@@ -76,7 +87,8 @@ class EvidencePoint:
 
 
 class SpanMinima:
-    """Per span and wire, the sample with the least residual thickness, over blocks."""
+    """Per span and wire, the sample with the least value (a residual thickness, a distance
+    to a mast), over blocks."""
 
     def __init__(self) -> None:
         self._best = np.zeros(0, dtype=_ROW)
@@ -85,19 +97,19 @@ class SpanMinima:
         self,
         span: np.ndarray,
         wire: np.ndarray,
-        thickness_mm: FloatArray,
+        value: FloatArray,
         scan: np.ndarray,
         x_roof_mm: FloatArray,
         z_roof_mm: FloatArray,
     ) -> None:
-        """Samples, each ``(m,)`` (NaN thicknesses are left out)."""
-        keep = np.isfinite(thickness_mm)
+        """Samples, each ``(m,)`` (NaN values are left out)."""
+        keep = np.isfinite(value)
         rows = np.zeros(int(np.count_nonzero(keep)), dtype=_ROW)
-        for name, values in (("span", span), ("wire", wire), ("thickness", thickness_mm),
+        for name, values in (("span", span), ("wire", wire), ("value", value),
                              ("scan", scan), ("x", x_roof_mm), ("z", z_roof_mm)):  # fmt: skip
             rows[name] = np.asarray(values)[keep]
         both = np.concatenate([self._best, rows])
-        order = np.lexsort((both["scan"], both["thickness"], both["wire"], both["span"]))
+        order = np.lexsort((both["scan"], both["value"], both["wire"], both["span"]))
         both = both[order]
         first = np.ones(both.shape[0], dtype=bool)
         first[1:] = (both["span"][1:] != both["span"][:-1]) | (
@@ -117,7 +129,7 @@ class SpanMinima:
 
 
 _ROW = np.dtype(
-    [("span", np.int64), ("wire", np.int64), ("thickness", np.float64), ("scan", np.int64),
+    [("span", np.int64), ("wire", np.int64), ("value", np.float64), ("scan", np.int64),
      ("x", np.float64), ("z", np.float64)]
 )  # fmt: skip
 

@@ -88,6 +88,8 @@ from catenary.errors import UserError
 from catenary.measurement.chain import MeasurementChain, TrackSamples
 from catenary.measurement.chainage import ChainageAlignment, TurningPointFinder, align_to_register
 from catenary.measurement.evidence import (
+    HALF_LENGTH_M,
+    POINTS,
     EvidencePoint,
     SpanMinima,
     cut_evidence,
@@ -502,12 +504,13 @@ def _finish(
     layout: SpanLayout,
     wire_types: dict[str, WireType],
     run_wire_type: str | None,
-    minima: SpanMinima,
+    crops: Mapping[str, SpanMinima],
 ) -> tuple[SpanAccumulator, int, int, int]:
     """Pass 2: chainage, span, wire type and residual thickness of every sample; returns
     the span statistics, the samples outside every span, the faulty ones and the uncertain
     ones (``selection_uncertain``). Faulty and uncertain samples are not in the statistics;
-    ``minima`` gets each span's and wire's thinnest sample of them."""
+    ``crops`` get each span's and wire's thinnest of them (``minimum``) and the one nearest
+    its first mast within ``HALF_LENGTH_M`` (``mast``)."""
     spans = SpanAccumulator(layout.boundaries_m)
     outside = faulty = uncertain = 0
     names = sorted({n for n in (*layout.wire_type, run_wire_type) if n is not None})
@@ -550,14 +553,19 @@ def _finish(
             batch["height_mm"][use],
             batch["stagger_mm"][use],
         )
-        minima.add(
-            index[use],
-            batch["wire"][use],
-            thickness[use],
-            batch["scan"][use],
-            batch["x_roof_mm"][use],
-            batch["z_roof_mm"][use],
-        )
+        from_mast = np.abs(chainage[use] - layout.boundaries_m[index[use]])
+        for point, value in (
+            ("minimum", thickness[use]),
+            ("mast", np.where(from_mast <= HALF_LENGTH_M, from_mast, np.nan)),
+        ):
+            crops[point].add(
+                index[use],
+                batch["wire"][use],
+                value,
+                batch["scan"][use],
+                batch["x_roof_mm"][use],
+                batch["z_roof_mm"][use],
+            )
     return spans, outside, faulty, uncertain
 
 
@@ -565,13 +573,13 @@ def _put_evidence(
     run_file: RunFile,
     processor: BlockProcessor,
     boundary: Callable[[], AbstractContextManager[None]],
-    points: list[EvidencePoint],
+    points: Mapping[str, list[EvidencePoint]],
     layout: SpanLayout,
     last_position_m: float,
     store: Store,
     processing_uuid: str,
 ) -> int:
-    """Pass 3: the image evidence at each span's and wire's thinnest sample, put in the store
+    """Pass 3: the image evidence at each of ``points`` (by ``POINTS``), put in the store
     (``catenary.measurement.evidence``); returns how many crops."""
 
     def locate(x_mm: FloatArray, z_mm: FloatArray) -> Mapping[str, FloatArray]:
@@ -580,19 +588,21 @@ def _put_evidence(
             return processor.image_columns(x_mm, z_mm)
 
     header = run_file.header
-    crops = cut_evidence(
-        lambda start, stop: next(run_file.blocks(stop - start, start=start, stop=stop)),
-        header.scans,
-        abs(last_position_m) / max(header.scans - 1, 1),
-        points,
-        locate if isinstance(processor, ImageLocator) else None,
-        sorted(header.camera_pixels),
-    )
     count = 0
-    for point, image in crops:
-        span = int(layout.number[point.span])
-        store.put_bytes(png_bytes(image), evidence_key(processing_uuid, span, point.wire))
-        count += 1
+    for where, chosen in points.items():
+        crops = cut_evidence(
+            lambda start, stop: next(run_file.blocks(stop - start, start=start, stop=stop)),
+            header.scans,
+            abs(last_position_m) / max(header.scans - 1, 1),
+            chosen,
+            locate if isinstance(processor, ImageLocator) else None,
+            sorted(header.camera_pixels),
+        )
+        for point, image in crops:
+            span = int(layout.number[point.span])
+            key = evidence_key(processing_uuid, span, point.wire, where)
+            store.put_bytes(png_bytes(image), key)
+            count += 1
     return count
 
 
@@ -853,7 +863,7 @@ def _process_open_run(
                     inputs.vehicle_filter_hz,
                 )
             alignment, layout, ends = _align(inputs, finder, last_position)
-            minima = SpanMinima()
+            crops = {point: SpanMinima() for point in POINTS}
             with SampleWriter(partial) as writer:
                 spans, outside, faulty, uncertain = _finish(
                     measured,
@@ -862,7 +872,7 @@ def _process_open_run(
                     layout,
                     inputs.wire_types,
                     request.wire_type,
-                    minima,
+                    crops,
                 )
                 samples = writer.rows
             measured.unlink()
@@ -877,11 +887,11 @@ def _process_open_run(
                 request.wire_type,
                 inputs.header.direction == "increasing",
             )
-            crops = _put_evidence(
+            cropped = _put_evidence(
                 run_file,
                 processor,
                 lambda: registry.boundary("processor", request.processor),
-                minima.points(),
+                {point: found.points() for point, found in crops.items()},
                 layout,
                 last_position,
                 store,
@@ -1000,7 +1010,7 @@ def _process_open_run(
         minimum=minimum,
         samples_key=kept,
         samples_where=store.describe(kept),
-        evidence=crops,
+        evidence=cropped,
         evidence_where=store.describe(evidence_prefix(processing_uuid)),
         sensors=smoother.describe(),
     )
