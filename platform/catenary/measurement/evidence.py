@@ -180,7 +180,7 @@ def crop_image(
 def png_bytes(image: np.ndarray) -> bytes:
     """An 8-bit greyscale image ``[rows, columns]`` as PNG."""
     out = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(image), mode="L").save(out, format="PNG", optimize=True)
+    Image.fromarray(np.ascontiguousarray(image), mode="L").save(out, format="PNG")
     return out.getvalue()
 
 
