@@ -251,17 +251,22 @@ def _number(value: Any) -> float | None:
     return float(value)
 
 
-def _parse_rule(raw: Any, where: str) -> LimitRule:
+def _table(raw: Any, where: str, known: set[str], required: tuple[str, ...]) -> dict[str, Any]:
+    """``raw`` if it is a table of ``known`` keys that holds the ``required`` ones; else a
+    ``UserError`` naming ``where`` and the key."""
     if not isinstance(raw, dict):
         raise UserError(f"{where}: must be a table, not {raw!r}")
-    unknown = sorted(set(raw) - _RULE_KEYS)
+    unknown = sorted(set(raw) - known)
     if unknown:
-        raise UserError(
-            f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(_RULE_KEYS))})"
-        )
-    for key in ("level", "scope"):
+        raise UserError(f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
+    for key in required:
         if key not in raw:
             raise UserError(f"{where}: missing key {key!r}")
+    return raw
+
+
+def _parse_rule(raw: Any, where: str) -> LimitRule:
+    raw = _table(raw, where, _RULE_KEYS, ("level", "scope"))
     level, scope = raw["level"], raw["scope"]
     if level not in LEVELS:
         raise UserError(f"{where}: level must be one of {', '.join(LEVELS)}, not {level!r}")
@@ -307,16 +312,7 @@ def _parse_rule(raw: Any, where: str) -> LimitRule:
 
 
 def _parse_geometry(raw: Any, where: str) -> GeometryRule:
-    if not isinstance(raw, dict):
-        raise UserError(f"{where}: must be a table, not {raw!r}")
-    unknown = sorted(set(raw) - _GEOMETRY_KEYS)
-    if unknown:
-        raise UserError(
-            f"{where}: unknown key {unknown[0]!r} (known: {', '.join(sorted(_GEOMETRY_KEYS))})"
-        )
-    for key in ("check", "level"):
-        if key not in raw:
-            raise UserError(f"{where}: missing key {key!r}")
+    raw = _table(raw, where, _GEOMETRY_KEYS, ("check", "level"))
     check, level = raw["check"], raw["level"]
     if check not in GEOMETRY_CHECKS:
         raise UserError(
