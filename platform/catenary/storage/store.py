@@ -22,12 +22,14 @@ from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import BinaryIO
+from typing import TYPE_CHECKING, BinaryIO
 from urllib.parse import quote, urlsplit
 
 import pyarrow as pa
-import pyarrow.dataset as ds
 import pyarrow.fs as pafs
+
+if TYPE_CHECKING:
+    import pyarrow.dataset as ds
 
 from catenary.config import FolderStoreSettings, S3StoreSettings, Settings, store_settings
 from catenary.errors import UserError
@@ -100,6 +102,8 @@ PARTITION_COLUMNS = ("line", "track", "run")
 def samples_partitioning() -> ds.Partitioning:
     """The hive partitioning of samples keys: ``line``, ``track`` and ``run`` (the run's
     UUID) as (decoded) strings."""
+    import pyarrow.dataset as ds  # here: it imports pandas, which ``process`` never needs
+
     schema = pa.schema([(name, pa.string()) for name in PARTITION_COLUMNS])
     return ds.partitioning(schema, flavor="hive")
 
@@ -308,6 +312,8 @@ class Store:
     def dataset(self, keys: Sequence[str]) -> ds.Dataset:
         """The samples files ``keys`` as one Parquet dataset with ``line``, ``track`` and
         ``run`` columns from their keys (filters on any column are pushed down to the files)."""
+        import pyarrow.dataset as ds
+
         for key in keys:
             check_key(key)
         with self._errors("open as a dataset", keys[0] if keys else ""):
