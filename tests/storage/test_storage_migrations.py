@@ -17,11 +17,14 @@ from catenary.storage.database import connected, require_migrated, session_scope
 from catenary.storage.models import (
     EXTERNAL_TABLES,
     AlertNotification,
+    ApiToken,
+    AuditEntry,
     Base,
     MaintenanceAction,
     Processing,
     Run,
     SpanMeasurement,
+    User,
     run_uuid,
 )
 
@@ -47,6 +50,9 @@ def test_models_have_every_table_of_the_storage_sketch() -> None:
         "maintenance_actions",
         "alert_notifications",
         "scheduler_leases",
+        "users",
+        "api_tokens",
+        "audit_entries",
     }
 
 
@@ -80,6 +86,10 @@ def test_upgrade_downgrade_upgrade(engine: Engine, build: Any) -> None:
                 recorded_by="tester",
             )
         )
+        user = User(name="planner", role="planner", password_hash="$argon2id$v=19$x")
+        user.tokens.append(ApiToken(name="sap", token_hash="a" * 64))
+        session.add(user)
+        session.add(AuditEntry(actor="planner", action="alert.acknowledge", target="alert 1"))
 
     assert migrate.downgrade(engine, "base") is None
     assert tables(engine) <= {"alembic_version"}  # Alembic keeps its (empty) version table

@@ -22,6 +22,7 @@ from catenary.cli.record import record
 from catenary.cli.report import report
 from catenary.cli.runs import compare, export, process, runs
 from catenary.cli.services import notify, scheduler
+from catenary.cli.users import tokens, users
 from catenary.cli.wiretypes import wire_types_command
 
 __all__ = ["cli", "main"]
@@ -63,6 +64,8 @@ for _command in (
     report,
     alerts,
     maintenance,
+    users,
+    tokens,
 ):
     cli.add_command(_command)
 

@@ -366,9 +366,15 @@ def ack_command(ctx: click.Context, alert_id: int, by: str) -> None:
     """Acknowledge alert ID (open -> acknowledged)."""
     from catenary.maintenance.alerts import acknowledge_alert
     from catenary.storage.database import session_scope
+    from catenary.storage.users import record_audit, system_actor
 
     with app_of(ctx).database() as engine, session_scope(engine) as session:
-        alert = acknowledge_alert(session, alert_id, by, _now())
+        now = _now()
+        alert = acknowledge_alert(session, alert_id, by, now)
+        details = {"by": alert.acknowledged_by, "status": "acknowledged"}
+        record_audit(
+            session, system_actor(), "alert.acknowledge", f"alert {alert.id}", details, at=now
+        )
     click.echo(printable(f"alert {alert.id} acknowledged by {alert.acknowledged_by}"))
 
 
@@ -389,9 +395,13 @@ def resolve_command(ctx: click.Context, alert_id: int, by: str, note: str | None
     """Resolve alert ID by hand (a later run showing the condition raises a new alert)."""
     from catenary.maintenance.alerts import resolve_alert
     from catenary.storage.database import session_scope
+    from catenary.storage.users import record_audit, system_actor
 
     with app_of(ctx).database() as engine, session_scope(engine) as session:
-        alert = resolve_alert(session, alert_id, by, _now(), note=note)
+        now = _now()
+        alert = resolve_alert(session, alert_id, by, now, note=note)
+        details = {"by": by.strip(), "status": "resolved"} | ({"note": note} if note else {})
+        record_audit(session, system_actor(), "alert.resolve", f"alert {alert.id}", details, at=now)
     click.echo(f"alert {alert.id} resolved by {by}")
 
 
@@ -501,6 +511,7 @@ def record_command(
     """Record maintenance work on a stretch of wire (masts M1 to M2, or chainages X to Y)."""
     from catenary.maintenance.actions import record_maintenance
     from catenary.storage.database import session_scope
+    from catenary.storage.users import record_audit, system_actor
 
     by_masts = from_mast is not None or to_mast is not None
     by_chainage = from_m is not None or to_m is not None
@@ -540,6 +551,27 @@ def record_command(
             mast_to=masts[1],
             wire=wire,
             note=note,
+        )
+        action = recorded.action
+        details = {
+            "by": action.recorded_by,
+            "kind": kind,
+            "line": line,
+            "track": track,
+            "from_chainage_m": low,
+            "to_chainage_m": high,
+            "mast_from": masts[0],
+            "mast_to": masts[1],
+            "wire": wire,
+            "performed_at": performed.isoformat(),
+            "resolved_alerts": list(recorded.resolved),
+        }
+        record_audit(
+            session,
+            system_actor(),
+            "maintenance.record",
+            f"maintenance action {action.id}",
+            details,
         )
     where = f"masts {masts[0]} to {masts[1]} " if masts[0] else ""
     wires = "all wires" if wire is None else f"wire position {wire}"

@@ -25,6 +25,7 @@ from typing import Any, ClassVar
 from sqlalchemy import (
     JSON,
     BigInteger,
+    Boolean,
     CheckConstraint,
     DateTime,
     Dialect,
@@ -68,6 +69,9 @@ RUN_STATUSES = ("processing", "complete", "failed")
 ALERT_LEVELS = ("plan", "urgent", "critical")  # catenary.limits.LEVELS
 ALERT_KINDS = ("threshold", "forecast", "geometry")
 NOTIFICATION_STATUSES = ("pending", "sent", "failed")
+USER_ROLES = ("viewer", "planner", "admin")
+"""What a user of the web service may do: read; also acknowledge, resolve and record
+maintenance; also manage users (README, Users and tokens)."""
 
 SHA256_LENGTH = 64
 UUID_LENGTH = 36
@@ -580,3 +584,67 @@ class SchedulerLease(Base):
     acquired_at: Mapped[datetime]
     heartbeat_at: Mapped[datetime]
     expires_at: Mapped[datetime]
+
+
+# --- users ----------------------------------------------------------------------------------
+
+
+class User(Base):
+    """A person who signs in to the web service (``catenary.storage.users``).
+
+    ``name`` is an identifier (printable, at most ``NAME_LENGTH`` characters); ``role`` one of
+    ``USER_ROLES``; ``password_hash`` an Argon2 hash in its PHC string form, never the password.
+    A disabled user keeps their rows (tokens, audit entries) but is refused.
+    """
+
+    __tablename__ = "users"
+    __table_args__ = (CheckConstraint(one_of("role", USER_ROLES), name="role"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    name: Mapped[str] = mapped_column(String(NAME_LENGTH), unique=True)
+    role: Mapped[str] = mapped_column(String(16))
+    password_hash: Mapped[str] = mapped_column(String(255))
+    disabled: Mapped[bool] = mapped_column(Boolean, default=False)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    updated_at: Mapped[datetime] = mapped_column(default=utc_now, onupdate=utc_now)
+
+    tokens: Mapped[list[ApiToken]] = relationship(
+        back_populates="user", cascade="all, delete-orphan", passive_deletes=True
+    )
+
+
+class ApiToken(Base):
+    """An API token of a user (``Authorization: Bearer``): only the SHA-256 of the token is
+    kept (hex), so the token itself is shown once, when it is created. A token is refused once
+    ``revoked_at`` is set or ``expires_at`` has passed."""
+
+    __tablename__ = "api_tokens"
+    __table_args__ = (UniqueConstraint("user_id", "name"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    user_id: Mapped[int] = mapped_column(ForeignKey("users.id", ondelete="CASCADE"))
+    name: Mapped[str] = mapped_column(String(NAME_LENGTH))
+    token_hash: Mapped[str] = mapped_column(String(SHA256_LENGTH), unique=True)
+    created_at: Mapped[datetime] = mapped_column(default=utc_now)
+    last_used_at: Mapped[datetime | None]
+    expires_at: Mapped[datetime | None]
+    revoked_at: Mapped[datetime | None]
+
+    user: Mapped[User] = relationship(back_populates="tokens")
+
+
+class AuditEntry(Base):
+    """One change, who made it and when: ``actor`` is a user's name, or the system user
+    (``system:<os user>@<host>``) for a change made on the command line; ``action`` says what
+    was done (``alert.acknowledge``, ``user.add``...), ``target`` to what (``alert 12``) and
+    ``details`` the rest (the ``--by`` name, what changed)."""
+
+    __tablename__ = "audit_entries"
+    __table_args__ = (Index(None, "at"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    at: Mapped[datetime] = mapped_column(default=utc_now)
+    actor: Mapped[str] = mapped_column(String(NAME_LENGTH))
+    action: Mapped[str] = mapped_column(String(64))
+    target: Mapped[str] = mapped_column(String(NAME_LENGTH))
+    details: Mapped[dict[str, Any]] = mapped_column(default=dict)
