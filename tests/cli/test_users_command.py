@@ -193,3 +193,34 @@ def test_alert_and_maintenance_changes_are_audited_with_the_system_user(
     assert recorded["from_chainage_m"] == pytest.approx(1000.0)
     assert recorded["to_chainage_m"] == pytest.approx(1050.0)
     assert recorded["resolved_alerts"] == [1]
+
+
+def test_the_audit_trail_lists_newest_first_and_filters(with_ada: str, engine: Engine) -> None:
+    url = with_ada
+    assert invoke(url, "users", "disable", "ada").exit_code == 0
+    listed = invoke(url, "audit", "list", "--format", "json")
+    assert listed.exit_code == 0, listed.output
+    records = json.loads(listed.output)
+    assert [(r["action"], r["target"]) for r in records] == [
+        ("user.disable", "user ada"),
+        ("user.add", "user ada"),
+    ]
+    assert records[0]["actor"] == system_actor() and records[0]["at"].endswith("+00:00")
+    assert (
+        json.loads(invoke(url, "audit", "list", "--limit", "1", "--format", "json").output)[0][
+            "action"
+        ]
+        == "user.disable"
+    )
+    assert (
+        json.loads(invoke(url, "audit", "list", "--actor", "nobody", "--format", "json").output)
+        == []
+    )
+    later = invoke(url, "audit", "list", "--since", "2999-01-01T00:00", "--format", "json")
+    assert json.loads(later.output) == []
+    text = invoke(url, "audit", "list")
+    assert text.exit_code == 0 and text.output.strip().splitlines()[-1] == "2 change(s)"
+    wrong = invoke(url, "audit", "list", "--since", "yesterday")
+    assert one_line_error(wrong) == (
+        "Error: --since 'yesterday': give an ISO 8601 time (2026-12-01T06:00)"
+    )

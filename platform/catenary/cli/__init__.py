@@ -22,7 +22,7 @@ from catenary.cli.record import record
 from catenary.cli.report import report
 from catenary.cli.runs import compare, export, process, runs
 from catenary.cli.services import notify, scheduler
-from catenary.cli.users import tokens, users
+from catenary.cli.users import audit, tokens, users
 from catenary.cli.wiretypes import wire_types_command
 
 __all__ = ["cli", "main"]
@@ -66,6 +66,7 @@ for _command in (
     maintenance,
     users,
     tokens,
+    audit,
 ):
     cli.add_command(_command)
 

@@ -1,5 +1,6 @@
 """``catenary users`` (add, list, disable, set-password) and ``catenary tokens`` (create,
-list, revoke): the people and programs the web service lets in (``catenary.storage.users``).
+list, revoke): the people and programs the web service lets in (``catenary.storage.users``);
+``catenary audit list``: who changed what, and when.
 
 Each command is one transaction, and each change is in the audit trail with the system user
 (``system:<os user>@<host>``) as its actor. Passwords are read from the terminal (twice,
@@ -23,7 +24,7 @@ from catenary.text import printable
 if TYPE_CHECKING:
     from catenary.storage.models import ApiToken, User
 
-__all__ = ["tokens", "users"]
+__all__ = ["audit", "tokens", "users"]
 
 _password_stdin = click.option(
     "--password-stdin",
@@ -229,3 +230,58 @@ def revoke_command(ctx: click.Context, token_id: int) -> None:
         token = revoke_token(session, token_id, actor=system_actor(), now=_now())
         done = f"token {token.id} {token.name!r} of user {token.user.name} revoked"
     click.echo(printable(done))
+
+
+@click.group("audit")
+def audit() -> None:
+    """The audit trail: every change, who made it and when."""
+
+
+@audit.command("list")
+@click.option("--since", metavar="ISO8601", help="Only changes from then on (UTC if no zone).")
+@click.option("--actor", metavar="NAME", help="Only this user's (or system user's) changes.")
+@click.option(
+    "--limit", type=click.IntRange(1, 100_000), default=100, show_default=True, help="At most."
+)
+@format_option()
+@database_option
+@click.pass_context
+def audit_list_command(
+    ctx: click.Context, since: str | None, actor: str | None, limit: int, output_format: str
+) -> None:
+    """List the audit trail, newest first."""
+    from catenary.errors import UserError
+    from catenary.storage.database import session_scope
+    from catenary.storage.users import audit_entries
+
+    start = None
+    if since is not None:
+        try:
+            start = datetime.fromisoformat(since.replace("Z", "+00:00"))
+        except ValueError:
+            raise UserError(
+                f"--since {since!r}: give an ISO 8601 time (2026-12-01T06:00)"
+            ) from None
+        start = start if start.tzinfo is not None else start.replace(tzinfo=UTC)
+    with app_of(ctx).database() as engine, session_scope(engine, read_only=True) as session:
+        records = [
+            {
+                "id": e.id,
+                "at": utc_text(e.at),
+                "actor": e.actor,
+                "action": e.action,
+                "target": e.target,
+                "details": dict(e.details or {}),
+            }
+            for e in audit_entries(session, since=start, actor=actor, limit=limit)
+        ]
+    if output_format == "json":
+        echo_json(records)
+        return
+    for r in records:
+        click.echo(
+            printable(
+                f"{r['at']}  {r['actor']:<28} {r['action']:<20} {r['target']}  {r['details']}"
+            )
+        )
+    click.echo(f"{len(records)} change(s)")

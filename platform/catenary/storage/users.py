@@ -35,6 +35,7 @@ __all__ = [
     "MIN_PASSWORD_LENGTH",
     "TOKEN_PREFIX",
     "add_user",
+    "audit_entries",
     "authenticate_password",
     "authenticate_token",
     "create_token",
@@ -95,6 +96,23 @@ def record_audit(
     session.add(entry)
     session.flush()
     return entry
+
+
+def audit_entries(
+    session: Session,
+    *,
+    since: datetime | None = None,
+    actor: str | None = None,
+    limit: int = 100,
+) -> list[AuditEntry]:
+    """The audit trail, newest first: at most ``limit`` entries, from ``since`` on (aware),
+    of ``actor`` only when given."""
+    query = select(AuditEntry).order_by(AuditEntry.at.desc(), AuditEntry.id.desc())
+    if since is not None:
+        query = query.where(AuditEntry.at >= since)
+    if actor is not None:
+        query = query.where(AuditEntry.actor == actor)
+    return list(session.scalars(query.limit(limit)))
 
 
 def token_hash(token: str) -> str:
