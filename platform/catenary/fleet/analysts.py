@@ -37,11 +37,11 @@ from catenary.domain import ALERT_STATUSES
 from catenary.errors import UserError
 from catenary.maintenance.alerts.trackdata import TrackData
 from catenary.maintenance.history import span_histories
-from catenary.measurement.samples import ADDED_COLUMNS, SAMPLES_SCHEMA
+from catenary.measurement.samples import ADDED_COLUMNS, SAMPLES_SCHEMA, stored_samples_key
 from catenary.measurement.spans import SPAN_COLUMNS
 from catenary.storage.database import connected, open_database, session_scope
 from catenary.storage.models import Alert, Line, Processing, Run, SpanMeasurement, Track, Vehicle
-from catenary.storage.store import Store, StoreError, check_key, open_store
+from catenary.storage.store import Store, StoreError, open_store
 
 __all__ = [
     "ALERT_COLUMNS",
@@ -460,13 +460,7 @@ class FleetData:
                     "with a samples file"
                 )
         for run, key in files:
-            try:
-                check_key(key)
-            except ValueError:
-                raise UserError(
-                    f"run {run}: its samples file {key!r} is not a store key (a path outside "
-                    "the data directory, stored by hand?)"
-                ) from None
+            stored_samples_key(run, key)
         return files
 
     def samples_dataset(

@@ -131,26 +131,17 @@ def push(
         sizes = [o.processing.samples_size_bytes or 0 for o in outgoing]
         on_plan(len(outgoing), sum(sizes))
         changed: dict[int, None] = {}
-        new_runs: set[str] = set()
         with tempfile.TemporaryDirectory(prefix="catenary-push-") as scratch:
             for item, size in zip(outgoing, sizes, strict=True):
                 placed = _send_samples(item, local_store, central_store, Path(scratch))
                 evidence = _send_evidence(item.processing.uuid, local_store, central_store)
-                source = (
-                    _send_run_file(item.run, central_store)
-                    if run_files and not _has_run_file(central_engine, item.run.uuid)
-                    else None
-                )
-                result.objects += 1 + len(evidence) + (source is not None)
+                result.objects += 1 + len(evidence)
                 result.bytes += placed.size_bytes + sum(e.size_bytes for e in evidence)
-                result.bytes += source.size_bytes if source else 0
-                run_id, stored, latest = _commit(central_engine, item, placed, source)
+                run_id, stored, latest = _commit(central_engine, item, placed)
                 if stored:
                     result.processings += 1
                     result.moved.append((item.run.uuid, item.processing.uuid, placed.size_bytes))
-                    if item.run.uuid not in new_runs and stored == "run":
-                        result.runs += 1
-                    new_runs.add(item.run.uuid)
+                    result.runs += stored == "run"
                 else:
                     result.already += 1
                 if latest:
@@ -280,12 +271,6 @@ def _send_run_file(run: Run, central: Store) -> StoredObject:
     return placed
 
 
-def _has_run_file(engine: Engine, run_uuid: str) -> bool:
-    with session_scope(engine, read_only=True) as session:
-        key = session.scalar(select(Run.source_key).where(Run.uuid == run_uuid))
-        return key is not None
-
-
 def _runs_without_file(local_engine: Engine, central_engine: Engine) -> list[Run]:
     """The vehicle's runs that the central side has without their run file."""
     with session_scope(central_engine, read_only=True) as session:
@@ -300,9 +285,7 @@ def _set_run_file(engine: Engine, run_uuid: str, key: str) -> None:
         run.source_key = key
 
 
-def _commit(
-    engine: Engine, item: _Outgoing, placed: StoredObject, source: StoredObject | None
-) -> tuple[int, str, bool]:
+def _commit(engine: Engine, item: _Outgoing, placed: StoredObject) -> tuple[int, str, bool]:
     """Store the processing centrally in one transaction; returns the central run's id, what
     was new ("run", "processing" or "" if another push stored it meanwhile) and whether the
     run's latest processing changed. A concurrent push of the same run is waited for and
@@ -310,16 +293,14 @@ def _commit(
     for attempt in (1, 2):
         try:
             with session_scope(engine) as session:
-                return _store(session, item, placed, source)
+                return _store(session, item, placed)
         except IntegrityError:
             if attempt == 2:
                 raise
     raise AssertionError("unreachable")
 
 
-def _store(
-    session: Session, item: _Outgoing, placed: StoredObject, source: StoredObject | None
-) -> tuple[int, str, bool]:
+def _store(session: Session, item: _Outgoing, placed: StoredObject) -> tuple[int, str, bool]:
     processing = item.processing
     line, track = (
         register_track(session, item.line, item.track)
@@ -343,8 +324,6 @@ def _store(
         new = "run"
     elif session.scalar(select(Processing.id).where(Processing.uuid == processing.uuid)):
         return run.id, "", False  # another push stored it meanwhile
-    if source is not None:
-        run.source_key = source.key
     made = Processing(
         **_columns(processing, _KEPT_APART),
         run=run,

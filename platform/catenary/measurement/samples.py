@@ -54,6 +54,7 @@ __all__ = [
     "run_profile",
     "run_samples",
     "sample_rows",
+    "stored_samples_key",
     "trusted",
     "with_wire_positions",
 ]
@@ -400,20 +401,25 @@ def with_wire_positions(
     return tables(), schema
 
 
+def stored_samples_key(run: object, key: str) -> str:
+    """``key``, the samples file of run ``run`` (its id or UUID, for the message), if it is a
+    store key; else a ``UserError``."""
+    try:
+        return check_key(key)
+    except ValueError:
+        raise UserError(
+            f"run {run}: its samples file {key!r} is not a store key (a path outside the "
+            "data directory, stored by hand?)"
+        ) from None
+
+
 def run_samples(store: Store, run: Run) -> StoredSamples:
     """The samples file of the run's latest processing in ``store``
     (``Processing.samples_key``)."""
     key = latest_processing(run).samples_key
     if not key:
         raise UserError(f"run {run.id} has no samples file")
-    try:
-        check_key(key)
-    except ValueError:
-        raise UserError(
-            f"run {run.id}: its samples file {key!r} is not a store key (a path outside the "
-            "data directory, stored by hand?)"
-        ) from None
-    return StoredSamples(store, key)
+    return StoredSamples(store, stored_samples_key(run.id, key))
 
 
 def run_profile(store: Store, run: Run) -> RunProfile:
