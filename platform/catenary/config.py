@@ -52,11 +52,21 @@ KNOWN_KEYS: dict[str, set[str]] = {
     "store": {"url", "endpoint", "region", "access_key_env", "secret_key_env"},
 }
 CORE_SECTIONS = frozenset(
-    {"limits", "maintenance", "notifications", "processing", "processors", "record", "scheduler"}
+    {
+        "limits",
+        "maintenance",
+        "notifications",
+        "processing",
+        "processors",
+        "record",
+        "scheduler",
+        "web",
+    }
 )
 """Sections other modules of the core read, each checking its keys as it reads them: [limits]
 (``catenary.limits``), [maintenance] (alert rules), [notifications], [scheduler], [record]
-(``catenary record``), [processing] and [processors.NAME] (``catenary process``)."""
+(``catenary record``), [processing] and [processors.NAME] (``catenary process``), [web]
+(``catenary serve``)."""
 
 
 def did_you_mean(name: str, known: Iterable[str], *, brackets: bool = False) -> str:

@@ -21,6 +21,7 @@ from catenary.cli.plugins import plugins_command
 from catenary.cli.record import record
 from catenary.cli.report import report
 from catenary.cli.runs import compare, export, process, runs
+from catenary.cli.serve import serve
 from catenary.cli.services import notify, scheduler
 from catenary.cli.users import audit, tokens, users
 from catenary.cli.wiretypes import wire_types_command
@@ -67,6 +68,7 @@ for _command in (
     users,
     tokens,
     audit,
+    serve,
 ):
     cli.add_command(_command)
 

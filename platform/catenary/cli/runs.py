@@ -279,32 +279,13 @@ def _run_record(run: Run) -> dict[str, Any]:
 def list_runs(ctx: click.Context, line: str | None, track: str | None, output_format: str) -> None:
     """List the stored runs, oldest first: id, UUID, line, track, direction, vehicle, start,
     scans, status, and the latest processing's UUID, time and length."""
-    from sqlalchemy import select
-    from sqlalchemy.orm import selectinload
-
     from catenary.storage.database import session_scope
-    from catenary.storage.models import Line, Run, Track
+    from catenary.storage.runs import list_runs as stored_runs
 
     if track is not None and line is None:
         raise click.UsageError("--track needs --line")
-    query = (
-        select(Run)
-        .join(Line, Run.line_id == Line.id)
-        .outerjoin(Track, Run.track_id == Track.id)
-        .options(
-            selectinload(Run.line),
-            selectinload(Run.track),
-            selectinload(Run.vehicle),
-            selectinload(Run.processing),
-        )
-        .order_by(Run.id)
-    )
-    if line is not None:
-        query = query.where(Line.code == line)
-    if track is not None:
-        query = query.where(Track.code == track)
     with app_of(ctx).database() as engine, session_scope(engine, read_only=True) as session:
-        records = [_run_record(run) for run in session.scalars(query)]
+        records = [_run_record(run) for run in stored_runs(session, line=line, track=track)]
     if output_format == "json":
         echo_json(records)
         return

@@ -9,7 +9,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from sqlalchemy import select
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, selectinload
 
 from catenary.domain import OPTIONAL_MAST_NUMBERS, TrackRegister, VehicleGeometry
 from catenary.errors import UserError
@@ -29,6 +29,7 @@ __all__ = [
     "find_run",
     "find_stored_run",
     "latest_processing",
+    "list_runs",
     "pending_runs",
     "register_track",
     "settings_sha256",
@@ -220,3 +221,25 @@ def pending_runs(session: Session, *, line: str | None = None) -> list[int]:
     if line is not None:
         query = query.join(Line, Run.line_id == Line.id).where(Line.code == line)
     return list(session.scalars(query.order_by(Run.id)))
+
+
+def list_runs(session: Session, *, line: str | None = None, track: str | None = None) -> list[Run]:
+    """The stored runs, oldest first (by id), of line ``line`` and track ``track`` if given;
+    each with its line, track, vehicle and latest processing loaded."""
+    query = (
+        select(Run)
+        .join(Line, Run.line_id == Line.id)
+        .outerjoin(Track, Run.track_id == Track.id)
+        .options(
+            selectinload(Run.line),
+            selectinload(Run.track),
+            selectinload(Run.vehicle),
+            selectinload(Run.processing),
+        )
+        .order_by(Run.id)
+    )
+    if line is not None:
+        query = query.where(Line.code == line)
+    if track is not None:
+        query = query.where(Track.code == track)
+    return list(session.scalars(query))

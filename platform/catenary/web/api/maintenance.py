@@ -1,0 +1,7 @@
+"""The API's maintenance."""
+
+from fastapi import APIRouter
+
+__all__ = ["router"]
+
+router = APIRouter(tags=["maintenance"])

@@ -1,0 +1,7 @@
+"""The alerts pages."""
+
+from fastapi import APIRouter
+
+__all__ = ["router"]
+
+router = APIRouter()

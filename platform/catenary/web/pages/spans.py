@@ -1,0 +1,7 @@
+"""The spans pages."""
+
+from fastapi import APIRouter
+
+__all__ = ["router"]
+
+router = APIRouter()
