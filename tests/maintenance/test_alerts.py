@@ -154,8 +154,7 @@ def test_a_repair_resolves_its_alerts_and_restarts_the_history(
         repaired_at = T0 + 3.5 * YEAR
         recorded = record_maintenance(
             session, track, "wire_replaced", 1100.0, 1250.0, repaired_at, "crew 4",
-            now=T0 + 4 * YEAR, mast_from="M02", mast_to="M05",
-        )  # fmt: skip
+            now=T0 + 4 * YEAR, mast_from="M02", mast_to="M05", actor="test")  # fmt: skip
         resolved = {a.id for a in alerts_of(session) if a.status == "resolved"}
         assert set(recorded.resolved) == resolved
         assert {a.mast_from for a in alerts_of(session) if a.id in resolved} == {"M03"}
@@ -181,7 +180,15 @@ def test_an_inspection_resolves_nothing(engine: Engine, registry: PluginRegistry
         fleet.run(track, T0, {3: 8.5})
         evaluate(session, registry)
         recorded = record_maintenance(
-            session, track, "inspected", 1000.0, 1500.0, T0 + YEAR, "inspector", now=T0 + YEAR
+            session,
+            track,
+            "inspected",
+            1000.0,
+            1500.0,
+            T0 + YEAR,
+            "inspector",
+            now=T0 + YEAR,
+            actor="test",
         )
         assert recorded.resolved == () and alerts_of(session)[0].status == "open"
 
@@ -196,7 +203,16 @@ def test_a_point_repair_covers_its_span_only_and_one_wire(
         evaluate(session, registry)
         assert len(alerts_of(session)) == 3  # span 3 both wires, span 4
         splice = record_maintenance(
-            session, track, "spliced", 1162.0, 1162.5, T0 + YEAR, "crew", now=T0 + YEAR, wire=1
+            session,
+            track,
+            "spliced",
+            1162.0,
+            1162.5,
+            T0 + YEAR,
+            "crew",
+            now=T0 + YEAR,
+            wire=1,
+            actor="test",
         )
         (alert,) = [a for a in alerts_of(session) if a.id in splice.resolved]
         assert (alert.mast_from, alert.wire) == ("M03", 1)
@@ -212,7 +228,12 @@ def test_resolved_by_hand_is_raised_again_only_from_a_later_run(
         evaluate(session, registry, now=T0 + timedelta(days=10))
         (alert,) = alerts_of(session)
         resolve_alert(
-            session, alert.id, "planner", T0 + timedelta(days=20), note="measured by hand"
+            session,
+            alert.id,
+            "planner",
+            T0 + timedelta(days=20),
+            note="measured by hand",
+            actor="test",
         )
         assert alert.details["resolved_by"] == "planner"
         assert evaluate(session, registry, now=T0 + timedelta(days=30)).new == []
@@ -315,10 +336,10 @@ def test_anchor_section_average(engine: Engine, registry: PluginRegistry) -> Non
         assert len(no_sections.notes) == 1 and "evaluated on nothing" in no_sections.notes[0]
         # replacing the section resolves it; replacing a part of it does not
         part = record_maintenance(session, track, "wire_replaced", 1000.0, 1100.0, T0 + 2 * YEAR,
-                                  "crew", now=T0 + 2 * YEAR)  # fmt: skip
+                                  "crew", now=T0 + 2 * YEAR, actor="test")  # fmt: skip
         assert part.resolved == ()
         whole = record_maintenance(session, track, "wire_replaced", 1000.0, 1250.0, T0 + 2 * YEAR,
-                                   "crew", now=T0 + 2 * YEAR)  # fmt: skip
+                                   "crew", now=T0 + 2 * YEAR, actor="test")  # fmt: skip
         assert whole.resolved == (alert.id,)
 
 

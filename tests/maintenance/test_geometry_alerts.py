@@ -191,11 +191,20 @@ def test_an_adjustment_resolves_the_geometry_alerts_it_covers(
             first.raised_at,
             "fitter",
             now=first.raised_at,
+            actor="test",
         )
         assert recorded.resolved == (first.id,)
         assert alerts[masts[-1]].status == "open"
         recorded = record_maintenance(
-            session, track, "inspected", -1e6, 1e6, first.raised_at, "fitter", now=first.raised_at
+            session,
+            track,
+            "inspected",
+            -1e6,
+            1e6,
+            first.raised_at,
+            "fitter",
+            now=first.raised_at,
+            actor="test",
         )
         assert recorded.resolved == ()
 

@@ -30,7 +30,7 @@ from catenary.text import identifier_option, printable
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session
 
-    from catenary.storage.models import Alert, Mast, Track
+    from catenary.storage.models import Alert
 
 __all__ = ["alerts", "maintenance"]
 
@@ -366,15 +366,10 @@ def ack_command(ctx: click.Context, alert_id: int, by: str) -> None:
     """Acknowledge alert ID (open -> acknowledged)."""
     from catenary.maintenance.alerts import acknowledge_alert
     from catenary.storage.database import session_scope
-    from catenary.storage.users import record_audit, system_actor
+    from catenary.storage.users import system_actor
 
     with app_of(ctx).database() as engine, session_scope(engine) as session:
-        now = _now()
-        alert = acknowledge_alert(session, alert_id, by, now)
-        details = {"by": alert.acknowledged_by, "status": "acknowledged"}
-        record_audit(
-            session, system_actor(), "alert.acknowledge", f"alert {alert.id}", details, at=now
-        )
+        alert = acknowledge_alert(session, alert_id, by, _now(), actor=system_actor())
     click.echo(printable(f"alert {alert.id} acknowledged by {alert.acknowledged_by}"))
 
 
@@ -395,45 +390,16 @@ def resolve_command(ctx: click.Context, alert_id: int, by: str, note: str | None
     """Resolve alert ID by hand (a later run showing the condition raises a new alert)."""
     from catenary.maintenance.alerts import resolve_alert
     from catenary.storage.database import session_scope
-    from catenary.storage.users import record_audit, system_actor
+    from catenary.storage.users import system_actor
 
     with app_of(ctx).database() as engine, session_scope(engine) as session:
-        now = _now()
-        alert = resolve_alert(session, alert_id, by, now, note=note)
-        details = {"by": by.strip(), "status": "resolved"} | ({"note": note} if note else {})
-        record_audit(session, system_actor(), "alert.resolve", f"alert {alert.id}", details, at=now)
+        alert = resolve_alert(session, alert_id, by, _now(), note=note, actor=system_actor())
     click.echo(f"alert {alert.id} resolved by {by}")
 
 
 @click.group("maintenance")
 def maintenance() -> None:
     """Maintenance actions on the wire: record work done (resolves the alerts it covers)."""
-
-
-def _track(session: Session, line: str, track: str) -> Track:
-    from sqlalchemy import select
-
-    from catenary.storage.models import Line, Track
-
-    found = session.scalars(
-        select(Track).join(Line).where(Line.code == line, Track.code == track)
-    ).one_or_none()
-    if found is None:
-        raise UserError(f"no track {track!r} on line {line!r} in the database")
-    return found
-
-
-def _mast(session: Session, track: Track, code: str, line: str) -> Mast:
-    from sqlalchemy import select
-
-    from catenary.storage.models import Mast
-
-    found = session.scalars(
-        select(Mast).where(Mast.track_id == track.id, Mast.code == code)
-    ).one_or_none()
-    if found is None:
-        raise UserError(f"no mast {code!r} on line {line!r} track {track.code!r} in the register")
-    return found
 
 
 def _moment(text: str | None) -> datetime:
@@ -509,9 +475,10 @@ def record_command(
     note: str | None,
 ) -> None:
     """Record maintenance work on a stretch of wire (masts M1 to M2, or chainages X to Y)."""
-    from catenary.maintenance.actions import record_maintenance
+    from catenary.maintenance.actions import mast_stretch, record_maintenance
     from catenary.storage.database import session_scope
-    from catenary.storage.users import record_audit, system_actor
+    from catenary.storage.runs import find_track
+    from catenary.storage.users import system_actor
 
     by_masts = from_mast is not None or to_mast is not None
     by_chainage = from_m is not None or to_m is not None
@@ -523,17 +490,10 @@ def record_command(
         raise click.UsageError("give --from-mast and --to-mast, or --from-m and --to-m")
     performed = _moment(at)
     with app_of(ctx).database() as engine, session_scope(engine) as session:
-        found = _track(session, line, track)
+        found = find_track(session, line, track)
         if by_masts:
             assert from_mast is not None and to_mast is not None
-            first, last = (
-                _mast(session, found, from_mast, line),
-                _mast(session, found, to_mast, line),
-            )
-            if first.chainage_m > last.chainage_m:
-                first, last = last, first
-            low, high = first.chainage_m, last.chainage_m
-            masts: tuple[str | None, str | None] = (first.code, last.code)
+            low, high, masts = mast_stretch(session, found, from_mast, to_mast)
         else:
             assert from_m is not None and to_m is not None
             low, high = sorted((from_m, to_m))
@@ -551,27 +511,7 @@ def record_command(
             mast_to=masts[1],
             wire=wire,
             note=note,
-        )
-        action = recorded.action
-        details = {
-            "by": action.recorded_by,
-            "kind": kind,
-            "line": line,
-            "track": track,
-            "from_chainage_m": low,
-            "to_chainage_m": high,
-            "mast_from": masts[0],
-            "mast_to": masts[1],
-            "wire": wire,
-            "performed_at": performed.isoformat(),
-            "resolved_alerts": list(recorded.resolved),
-        }
-        record_audit(
-            session,
-            system_actor(),
-            "maintenance.record",
-            f"maintenance action {action.id}",
-            details,
+            actor=system_actor(),
         )
     where = f"masts {masts[0]} to {masts[1]} " if masts[0] else ""
     wires = "all wires" if wire is None else f"wire position {wire}"

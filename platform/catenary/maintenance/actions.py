@@ -31,6 +31,8 @@ from catenary.arrays import BoolArray
 from catenary.domain import MAINTENANCE_KINDS, REPAIR_KINDS
 from catenary.errors import UserError
 from catenary.storage.models import Alert, MaintenanceAction, Track
+from catenary.storage.runs import find_mast
+from catenary.storage.users import record_audit
 
 __all__ = [
     "ADJUSTED",
@@ -72,6 +74,17 @@ class Recorded:
     resolved: tuple[int, ...]
 
 
+def mast_stretch(
+    session: Session, track: Track, from_mast: str, to_mast: str
+) -> tuple[float, float, tuple[str | None, str | None]]:
+    """The stretch between two masts of ``track``'s register: its chainages [m], lower first,
+    and the masts' codes in that order; a ``UserError`` for a mast the register lacks."""
+    first, last = find_mast(session, track, from_mast), find_mast(session, track, to_mast)
+    if first.chainage_m > last.chainage_m:
+        first, last = last, first
+    return first.chainage_m, last.chainage_m, (first.code, last.code)
+
+
 def record_maintenance(
     session: Session,
     track: Track,
@@ -86,10 +99,11 @@ def record_maintenance(
     mast_to: str | None = None,
     wire: int | None = None,
     note: str | None = None,
+    actor: str,
 ) -> Recorded:
     """Add a maintenance action on ``track`` from ``from_m`` to ``to_m`` [m]; a repair resolves
     the open and acknowledged alerts it covers, an adjustment the geometry alerts it covers
-    (``resolved_at = now``).
+    (``resolved_at = now``). In the audit trail as ``actor``'s change.
 
     Raises ``UserError`` for an unknown kind, a chainage that is not finite (an infinite
     stretch would restart every span's history of the track), a negative wire or an empty
@@ -121,17 +135,38 @@ def record_maintenance(
     )
     session.add(action)
     session.flush()
-    if kind not in (*REPAIR_KINDS, ADJUSTED):
-        return Recorded(action=action, resolved=())
+    resolved = _resolve_covered(session, action, now) if kind in (*REPAIR_KINDS, ADJUSTED) else []
+    details = {
+        "by": action.recorded_by,
+        "kind": kind,
+        "line": track.line.code,
+        "track": track.code,
+        "from_chainage_m": low,
+        "to_chainage_m": high,
+        "mast_from": mast_from,
+        "mast_to": mast_to,
+        "wire": wire,
+        "performed_at": performed_at.isoformat(),
+        "resolved_alerts": resolved,
+    }
+    target = f"maintenance action {action.id}"
+    record_audit(session, actor, "maintenance.record", target, details, at=now)
+    return Recorded(action=action, resolved=tuple(resolved))
+
+
+def _resolve_covered(session: Session, action: MaintenanceAction, now: datetime) -> list[int]:
+    """Resolve the open and acknowledged alerts ``action`` covers (an adjustment: geometry
+    alerts only); their ids."""
+    low, high = action.from_chainage_m, action.to_chainage_m
     query = select(Alert).where(
-        Alert.track_id == track.id,
+        Alert.track_id == action.track.id,
         Alert.status.in_(("open", "acknowledged")),
         Alert.start_chainage_m < high + COVER_TOLERANCE_M,
         Alert.end_chainage_m > low - COVER_TOLERANCE_M,
     )
-    if wire is not None:
-        query = query.where(Alert.wire == wire)
-    if kind == ADJUSTED:
+    if action.wire is not None:
+        query = query.where(Alert.wire == action.wire)
+    if action.kind == ADJUSTED:
         query = query.where(Alert.kind == "geometry")
     candidates = list(session.scalars(query.order_by(Alert.id)))
     section = np.array(
@@ -146,7 +181,7 @@ def record_maintenance(
             alert.status = "resolved"
             alert.resolved_at = now
             alert.resolved_by_action = action
-            alert.details = {**(alert.details or {}), "resolution": f"{kind} (maintenance)"}
+            alert.details = {**(alert.details or {}), "resolution": f"{action.kind} (maintenance)"}
             resolved.append(alert.id)
     session.flush()
-    return Recorded(action=action, resolved=tuple(resolved))
+    return resolved

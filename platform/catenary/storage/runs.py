@@ -26,8 +26,10 @@ from catenary.storage.models import (
 from catenary.storage.rigs import register_rig_calibration
 
 __all__ = [
+    "find_mast",
     "find_run",
     "find_stored_run",
+    "find_track",
     "latest_processing",
     "list_runs",
     "pending_runs",
@@ -243,3 +245,25 @@ def list_runs(session: Session, *, line: str | None = None, track: str | None = 
     if track is not None:
         query = query.where(Track.code == track)
     return list(session.scalars(query))
+
+
+def find_track(session: Session, line: str, track: str) -> Track:
+    """Track ``track`` of line ``line``; a ``UserError`` if the database has none."""
+    found = session.scalars(
+        select(Track).join(Line).where(Line.code == line, Track.code == track)
+    ).one_or_none()
+    if found is None:
+        raise UserError(f"no track {track!r} on line {line!r} in the database")
+    return found
+
+
+def find_mast(session: Session, track: Track, code: str) -> Mast:
+    """Mast ``code`` of ``track``; a ``UserError`` if the register has none."""
+    found = session.scalars(
+        select(Mast).where(Mast.track_id == track.id, Mast.code == code)
+    ).one_or_none()
+    if found is None:
+        raise UserError(
+            f"no mast {code!r} on line {track.line.code!r} track {track.code!r} in the register"
+        )
+    return found

@@ -25,6 +25,7 @@ from catenary.storage.models import (
     Line,
     Track,
 )
+from catenary.storage.users import record_audit
 
 if TYPE_CHECKING:
     from catenary.plugins import PluginRegistry
@@ -94,8 +95,11 @@ def _name(by: str) -> str:
     return name
 
 
-def acknowledge_alert(session: Session, alert_id: int, by: str, now: datetime) -> Alert:
-    """Mark open alert ``alert_id`` acknowledged by ``by`` at ``now``."""
+def acknowledge_alert(
+    session: Session, alert_id: int, by: str, now: datetime, *, actor: str
+) -> Alert:
+    """Mark open alert ``alert_id`` acknowledged by ``by`` at ``now``; in the audit trail as
+    ``actor``'s change (a signed-in user, or ``system_actor()`` on the command line)."""
     name = _name(by)
     alert = _alert(session, alert_id)
     if alert.status == "acknowledged":
@@ -107,13 +111,22 @@ def acknowledge_alert(session: Session, alert_id: int, by: str, now: datetime) -
         raise UserError(f"alert {alert_id} is resolved (at {iso_utc(alert.resolved_at)})")
     alert.status, alert.acknowledged_by, alert.acknowledged_at = "acknowledged", name, now
     session.flush()
+    details = {"by": name, "status": "acknowledged"}
+    record_audit(session, actor, "alert.acknowledge", f"alert {alert.id}", details, at=now)
     return alert
 
 
 def resolve_alert(
-    session: Session, alert_id: int, by: str, now: datetime, note: str | None = None
+    session: Session,
+    alert_id: int,
+    by: str,
+    now: datetime,
+    note: str | None = None,
+    *,
+    actor: str,
 ) -> Alert:
-    """Resolve alert ``alert_id`` by hand: by ``by`` at ``now``, with an optional ``note``.
+    """Resolve alert ``alert_id`` by hand: by ``by`` at ``now``, with an optional ``note``; in
+    the audit trail as ``actor``'s change.
 
     The condition is raised again (a new alert) only from a run that starts after ``now``.
     """
@@ -125,6 +138,8 @@ def resolve_alert(
     extra = {"resolution": "by hand", "resolved_by": name} | ({"note": note} if note else {})
     alert.details = {**(alert.details or {}), **extra}
     session.flush()
+    details = {"by": name, "status": "resolved"} | ({"note": note} if note else {})
+    record_audit(session, actor, "alert.resolve", f"alert {alert.id}", details, at=now)
     return alert
 
 
