@@ -33,7 +33,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
@@ -460,6 +459,8 @@ def track_view(
     level_m = choose_level(from_m, to_m, columns)
     if level_m is None:
         return _raw_view(StoredSamples(store, samples_key), from_m, to_m, quantities)
+    import pyarrow.dataset as ds  # here: it imports pandas, which ``process`` never needs
+
     key = ensure_envelopes(store, samples_key)
     window = (
         (ds.field("level_m") == level_m)
