@@ -989,10 +989,11 @@ def _process_open_run(
             with suppress(StoreError):  # unreachable: the next process removes them
                 if placed is not None:
                     store.delete(placed)
-                    store.delete(envelope_key(placed))
                 if kept is None:
                     for key in store.keys(evidence_prefix(str(made))):
                         store.delete(key)
+                if placed is not None:  # last: the folder it would be in may be the fault
+                    store.delete(envelope_key(placed))
             if isinstance(exc, _StoredMeanwhile):
                 return ProcessResult(
                     run_id=exc.run_id,
