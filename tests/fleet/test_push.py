@@ -23,6 +23,7 @@ from catenary.cli import cli
 from catenary.config import load_settings
 from catenary.errors import UserError
 from catenary.fleet.transfer import push, run_file_key
+from catenary.measurement.samples import SampleWriter
 from catenary.storage.database import make_engine, session_scope
 from catenary.storage.models import Alert, Mast, Processing, Run, SpanMeasurement
 from catenary.storage.store import StoreError, envelope_key, open_store
@@ -277,7 +278,7 @@ def test_a_run_cut_at_other_masts_than_the_central_registers_is_refused(
     store = open_store(vehicle)
     (depot.data_dir / "samples").mkdir(parents=True, exist_ok=True)
     source = depot.data_dir / "x.parquet"
-    source.write_bytes(b"PAR1")
+    SampleWriter(source).close()  # no rows: its envelope file is built empty
     store.put_file(source, "samples/x.parquet")
     central = load_settings(config_path=depot.central, environ={})
     with pytest.raises(UserError, match=r"mast M2 is at 1050.0 m here, 1052.5 m centrally"):
