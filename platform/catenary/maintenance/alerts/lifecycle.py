@@ -51,8 +51,14 @@ def list_alerts(
     status: str = "active",
     line: str | None = None,
     levels: Sequence[str] = (),
+    *,
+    track: str | None = None,
+    kinds: Sequence[str] = (),
+    limit: int | None = None,
+    offset: int = 0,
 ) -> list[Alert]:
-    """Alerts as a planner reads them: most severe level first, then line, track, chainage.
+    """Alerts as a planner reads them: most severe level first, then line, track, chainage;
+    ``limit`` of them (all: None) from ``offset`` on.
 
     ``status``: one of ``ALERT_STATUSES``, ``active`` (open and acknowledged) or ``all``.
     """
@@ -66,17 +72,18 @@ def list_alerts(
         raise UserError(f"unknown alert status {status!r} (known: {known})")
     if line is not None:
         query = query.where(Line.code == line)
+    if track is not None:
+        query = query.where(Track.code == track)
     if levels:
         query = query.where(Alert.level.in_(levels))
+    if kinds:
+        query = query.where(Alert.kind.in_(kinds))
     severity = case(_SEVERITY, value=Alert.level, else_=len(_SEVERITY))
     kind = case({"threshold": 0}, value=Alert.kind, else_=1)
-    return list(
-        session.scalars(
-            query.order_by(
-                severity, Line.code, Track.code, Alert.start_chainage_m, Alert.wire, kind, Alert.id
-            )
-        )
+    query = query.order_by(
+        severity, Line.code, Track.code, Alert.start_chainage_m, Alert.wire, kind, Alert.id
     )
+    return list(session.scalars(query.limit(limit).offset(offset)))
 
 
 def _alert(session: Session, alert_id: int) -> Alert:
