@@ -27,6 +27,7 @@ from catenary.maintenance.forecast import (
     CONFIDENCE,
     MIN_RUNS,
     moment_of,
+    reach_text,
 )
 from catenary.maintenance.trends import TrackTrends, history_rows, rate_interval, span_trends
 from catenary.plugins import CommandContext
@@ -35,7 +36,7 @@ from catenary.storage.models import SpanMeasurement
 from catenary.text import printable
 from catenary_reports.plots import LimitLine, TrendSeries, trend_figure, wire_colour
 from catenary_reports.request import check_output
-from catenary_reports.trend_report import reach_text, track_of
+from catenary_reports.trend_report import track_of
 
 __all__ = ["show_history"]
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import (
     case,
@@ -26,6 +26,7 @@ from catenary.storage.models import (
     Track,
 )
 from catenary.storage.users import record_audit
+from catenary.text import utc_text
 
 if TYPE_CHECKING:
     from catenary.plugins import PluginRegistry
@@ -33,6 +34,7 @@ if TYPE_CHECKING:
 __all__ = [
     "ACTIVE",
     "acknowledge_alert",
+    "alert_json",
     "announce_alerts",
     "iso_utc",
     "list_alerts",
@@ -84,6 +86,35 @@ def list_alerts(
         severity, Line.code, Track.code, Alert.start_chainage_m, Alert.wire, kind, Alert.id
     )
     return list(session.scalars(query.limit(limit).offset(offset)))
+
+
+def alert_json(alert: Alert) -> dict[str, Any]:
+    """An alert as JSON (``catenary alerts list --format json``, the web API), its track and line
+    loaded."""
+    return {
+        "id": alert.id,
+        "line": alert.track.line.code,
+        "track": alert.track.code,
+        "wire_position": alert.wire,
+        "mast_from": alert.mast_from,
+        "mast_to": alert.mast_to,
+        "start_chainage_m": alert.start_chainage_m,
+        "end_chainage_m": alert.end_chainage_m,
+        "rule": alert.rule,
+        "level": alert.level,
+        "kind": alert.kind,
+        "value": alert.value,
+        "threshold": alert.threshold,
+        "status": alert.status,
+        "raised_at": utc_text(alert.raised_at),
+        "acknowledged_by": alert.acknowledged_by,
+        "acknowledged_at": utc_text(alert.acknowledged_at),
+        "resolved_at": utc_text(alert.resolved_at),
+        "resolved_by_run_id": alert.resolved_by_run_id,
+        "resolved_by_action_id": alert.resolved_by_action_id,
+        "span_measurement_id": alert.span_measurement_id,
+        "details": alert.details,
+    }
 
 
 def _alert(session: Session, alert_id: int) -> Alert:
