@@ -56,11 +56,14 @@ def list_alerts(
     *,
     track: str | None = None,
     kinds: Sequence[str] = (),
+    from_m: float | None = None,
+    to_m: float | None = None,
     limit: int | None = None,
     offset: int = 0,
 ) -> list[Alert]:
     """Alerts as a planner reads them: most severe level first, then line, track, chainage;
-    ``limit`` of them (all: None) from ``offset`` on.
+    those overlapping ``from_m`` to ``to_m`` [m] if given; ``limit`` of them (all: None) from
+    ``offset`` on.
 
     ``status``: one of ``ALERT_STATUSES``, ``active`` (open and acknowledged) or ``all``.
     """
@@ -80,6 +83,10 @@ def list_alerts(
         query = query.where(Alert.level.in_(levels))
     if kinds:
         query = query.where(Alert.kind.in_(kinds))
+    if from_m is not None:
+        query = query.where(Alert.end_chainage_m > from_m)
+    if to_m is not None:
+        query = query.where(Alert.start_chainage_m < to_m)
     severity = case(_SEVERITY, value=Alert.level, else_=len(_SEVERITY))
     kind = case({"threshold": 0}, value=Alert.kind, else_=1)
     query = query.order_by(

@@ -21,7 +21,7 @@ from catenary.maintenance.alerts.lifecycle import (
 )
 from catenary.storage.database import session_scope
 from catenary.storage.models import ALERT_KINDS, Alert
-from catenary.web.api.spans import MAX_LIMIT
+from catenary.web.api.spans import MAX_LIMIT, chainage_query, check_range
 from catenary.web.app import state
 from catenary.web.auth import Principal, requires
 from catenary.web.errors import NotFound
@@ -96,10 +96,13 @@ def alerts(
     kind: Annotated[list[Kind] | None, Query(description="Only these kinds.")] = None,
     line: Annotated[str | None, Query(max_length=64)] = None,
     track: Annotated[str | None, Query(max_length=64)] = None,
+    from_m: Annotated[float | None, chainage_query("Alerts ending after this.")] = None,
+    to_m: Annotated[float | None, chainage_query("Alerts starting before this.")] = None,
     limit: Annotated[int, Query(ge=1, le=MAX_LIMIT)] = 100,
     offset: Annotated[int, Query(ge=0)] = 0,
 ) -> AlertPageOut:
     """Alerts as a planner reads them: most severe level first, then line, track, chainage."""
+    check_range(from_m, to_m)
     with session_scope(state(request).engine, read_only=True) as session:
         found = list_alerts(
             session,
@@ -108,6 +111,8 @@ def alerts(
             level or (),
             track=track,
             kinds=kind or (),
+            from_m=from_m,
+            to_m=to_m,
             limit=limit + 1,
             offset=offset,
         )
