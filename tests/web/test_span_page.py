@@ -37,6 +37,7 @@ def test_the_span_page_shows_its_history_forecast_alerts_and_actions(api: Web) -
     svg = re.search(r"<svg class=\"span-chart\".*?</svg>", html, re.S)
     assert svg is not None and svg.group(0).count("<circle") == 4
     assert 'class="limit urgent"' in svg.group(0) and 'class="limit critical"' in svg.group(0)
+    assert svg.group(0).count('class="forecast"') == 1  # to the first limit's date
     assert "10.80" in html and "1+162.5" in html  # the latest run: minimum and where
     assert 'href="/alerts?line=L1&amp;track=1&amp;status=all"' in html
     assert "No maintenance action recorded" in html

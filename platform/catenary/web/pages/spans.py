@@ -28,15 +28,37 @@ router = APIRouter()
 ALERTS_SHOWN = 50
 """The most alerts the page lists (the alerts page has the rest)."""
 WIRE_COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#9467bd")
+FORECAST_YEARS = 10.0
+"""How far past the last run the chart reaches for a forecast at most [years]."""
+SECONDS_PER_YEAR = 365.25 * 86400.0
 
 
 @dataclass(frozen=True)
 class Series:
-    """One wire position's points in the chart's pixels and its label."""
+    """One wire position's points in the chart's pixels and its label; ``forecast``: from its
+    last point to where it reaches its first limit, and that date's interval ``(x_low,
+    x_high, y)`` (empty: no forecast within the chart)."""
 
     label: str
     colour: str
     points: list[tuple[float, float]]
+    forecast: list[tuple[float, float]]
+    interval: tuple[float, float, float] | None
+
+
+def _forecast(wire: WireHistoryOut) -> tuple[float, float, float, float] | None:
+    """The first limit's forecast as ``(threshold_mm, central, low, high)`` [POSIX s]; None
+    without a dated one."""
+    for f in wire.forecasts:
+        if f.reaches is not None and f.reaches[:1].isdigit():
+            central, low, high = (
+                datetime.fromisoformat(d).replace(tzinfo=UTC).timestamp()
+                if d is not None and d[:1].isdigit()
+                else math.nan
+                for d in (f.reaches, f.low, f.high)
+            )
+            return f.threshold_mm, central, low, high
+    return None
 
 
 @dataclass(frozen=True)
@@ -65,6 +87,9 @@ def history_chart(wires: list[WireHistoryOut], width: int = 680, height: int = 2
     if not times:
         return Chart(width, height, left, height - bottom, [], [], [], [])
     t0, t1 = min(times), max(times)
+    forecasts = [_forecast(w) for w in wires]
+    horizon = t1 + FORECAST_YEARS * SECONDS_PER_YEAR
+    t1 = max([t1, *(f[1] for f in forecasts if f is not None and f[1] <= horizon)])
     t0, t1 = (t0 - 86400.0, t1 + 86400.0) if t1 - t0 < 86400.0 else (t0, t1)
     low, high = math.floor(min(values) - 0.2), math.ceil(max(values) + 0.2)
 
@@ -74,14 +99,17 @@ def history_chart(wires: list[WireHistoryOut], width: int = 680, height: int = 2
     def y(mm: float) -> float:
         return round(height - bottom - (mm - low) / (high - low) * (height - top - bottom), 1)
 
-    series = [
-        Series(
-            f"position {w.wire_position}",
-            WIRE_COLOURS[k % len(WIRE_COLOURS)],
-            [(x(r.started_at.timestamp()), y(r.min_residual_thickness_mm)) for r in w.runs],
-        )
-        for k, w in enumerate(wires)
-    ]
+    series = []
+    for k, (w, f) in enumerate(zip(wires, forecasts, strict=True)):
+        points = [(x(r.started_at.timestamp()), y(r.min_residual_thickness_mm)) for r in w.runs]
+        shown = f is not None and f[1] <= t1 and bool(points)
+        forecast = [points[-1], (x(f[1]), y(f[0]))] if f is not None and shown else []
+        interval = None
+        if f is not None and shown:
+            ends = [t0 if math.isnan(t) else min(max(t, t0), t1) for t in f[2:]]
+            interval = (x(ends[0]), x(ends[1]), y(f[0]))
+        colour = WIRE_COLOURS[k % len(WIRE_COLOURS)]
+        series.append(Series(f"position {w.wire_position}", colour, points, forecast, interval))
     years = range(datetime.fromtimestamp(t0, UTC).year, datetime.fromtimestamp(t1, UTC).year + 2)
     x_ticks = [
         (x(moment), str(year))
