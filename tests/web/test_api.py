@@ -82,6 +82,10 @@ def test_the_openapi_description_lists_every_path_and_its_parameters(api: Web) -
     assert {f"/api/v1{p}" for p in PATHS} <= set(paths)
     spans = {p["name"] for p in paths["/api/v1/spans"]["get"]["parameters"]}
     assert {"line", "track", "from_m", "to_m", "run", "order", "limit", "offset"} <= spans
+    errors = paths["/api/v1/spans"]["get"]["responses"]
+    for status in ("401", "404", "422"):
+        schema = errors[status]["content"]["application/json"]["schema"]
+        assert schema == {"$ref": "#/components/schemas/ErrorOut"}
     fields = answer.json()["components"]["schemas"]["SpanOut"]["properties"]
     assert {"min_residual_thickness_mm", "wire_position", "mast_from", "samples"} <= set(fields)
 

@@ -21,6 +21,7 @@ from catenary.maintenance.alerts.lifecycle import (
 )
 from catenary.storage.database import session_scope
 from catenary.storage.models import ALERT_KINDS, Alert
+from catenary.web.api.runs import errors
 from catenary.web.api.spans import MAX_LIMIT, chainage_query, check_range
 from catenary.web.app import state
 from catenary.web.auth import Principal, requires
@@ -28,7 +29,7 @@ from catenary.web.errors import NotFound
 
 __all__ = ["AlertOut", "AlertPageOut", "router"]
 
-router = APIRouter(tags=["alerts"])
+router = APIRouter(tags=["alerts"], responses=errors())
 
 Level = Literal["plan", "urgent", "critical"]
 Kind = Literal["threshold", "forecast", "geometry"]
@@ -134,10 +135,7 @@ def _changed(session: Session, alert_id: int, change: Any) -> AlertOut:
     return AlertOut.of(alert)
 
 
-_WRITES: dict[int | str, dict[str, Any]] = {
-    404: {"description": "No such alert."},
-    409: {"description": "The alert's status does not allow it."},
-}
+_WRITES = errors({404: "No such alert.", 409: "The alert's status does not allow it."})
 
 
 @router.post("/alerts/{alert_id}/acknowledge", responses=_WRITES)

@@ -14,14 +14,14 @@ from pydantic import AwareDatetime, BaseModel, Field
 from catenary.domain import MAINTENANCE_KINDS
 from catenary.maintenance.actions import list_maintenance, mast_stretch, record_maintenance
 from catenary.storage.database import session_scope
-from catenary.web.api.runs import track_of
+from catenary.web.api.runs import errors, track_of
 from catenary.web.api.spans import MAX_LIMIT, MaintenanceActionOut, chainage_query, check_range
 from catenary.web.app import state
 from catenary.web.auth import Principal, requires
 
 __all__ = ["MaintenanceActionIn", "RecordedOut", "router"]
 
-router = APIRouter(tags=["maintenance"])
+router = APIRouter(tags=["maintenance"], responses=errors())
 
 Kind = Literal["wire_replaced", "reinforced", "spliced", "inspected", "adjusted"]
 assert set(get_args(Kind)) == set(MAINTENANCE_KINDS)
@@ -52,7 +52,7 @@ class RecordedOut(BaseModel):
     resolved_alerts: list[int]
 
 
-@router.get("/maintenance-actions", responses={404: {"description": "No such line or track."}})
+@router.get("/maintenance-actions", responses=errors({404: "No such line or track."}))
 def maintenance_actions(
     request: Request,
     user: Annotated[Principal, requires("viewer")],
@@ -77,10 +77,7 @@ def maintenance_actions(
 @router.post(
     "/maintenance-actions",
     status_code=201,
-    responses={
-        400: {"description": "No such mast."},
-        404: {"description": "No such line or track."},
-    },
+    responses=errors({400: "No such mast.", 404: "No such line or track."}),
 )
 def record(
     request: Request, body: MaintenanceActionIn, user: Annotated[Principal, requires("planner")]

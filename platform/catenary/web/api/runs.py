@@ -3,8 +3,9 @@ its processings, alignment quality, vehicle and calibration)."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from datetime import datetime
-from typing import Annotated
+from typing import Annotated, Any
 
 from fastapi import APIRouter, Path, Query, Request
 from pydantic import BaseModel
@@ -18,7 +19,7 @@ from catenary.web.app import state
 from catenary.web.auth import Principal, requires
 from catenary.web.errors import NotFound
 
-__all__ = ["RunDetailOut", "RunOut", "router", "run_of", "track_of"]
+__all__ = ["ErrorOut", "RunDetailOut", "RunOut", "errors", "router", "run_of", "track_of"]
 
 RunReference = Annotated[
     str,
@@ -45,7 +46,24 @@ def track_of(session: Session, line: str, track: str) -> Track:
         raise NotFound(str(exc)) from None
 
 
-router = APIRouter(tags=["runs"])
+class ErrorOut(BaseModel):
+    """Every error's answer: one line saying what is wrong (never a traceback)."""
+
+    error: str
+
+
+def errors(described: Mapping[int, str] | None = None) -> dict[int | str, dict[str, Any]]:
+    """The OpenAPI responses of the errors every endpoint may answer (401, 403, 422) and the
+    ``described`` ones (status -> description), each an ``ErrorOut``."""
+    common = {401: "No user: sign in or send a bearer token.", 403: "Not allowed.",
+              422: "A bad parameter or body."}  # fmt: skip
+    return {
+        status: {"model": ErrorOut, "description": text}
+        for status, text in (common | dict(described or {})).items()
+    }
+
+
+router = APIRouter(tags=["runs"], responses=errors())
 
 
 class RunOut(BaseModel):
@@ -163,7 +181,7 @@ class RunDetailOut(RunOut):
     calibration: CalibrationOut
 
 
-@router.get("/runs/{run}", responses={404: {"description": "No such run."}})
+@router.get("/runs/{run}", responses=errors({404: "No such run."}))
 def run_detail(
     request: Request, run: RunReference, user: Annotated[Principal, requires("viewer")]
 ) -> RunDetailOut:

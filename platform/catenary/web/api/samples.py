@@ -26,14 +26,14 @@ from catenary.measurement.samples import (
 )
 from catenary.storage.database import session_scope
 from catenary.storage.spans import wire_positions_of
-from catenary.web.api.runs import run_of
+from catenary.web.api.runs import errors, run_of
 from catenary.web.api.spans import chainage_query, check_range
 from catenary.web.app import state
 from catenary.web.auth import Principal, requires
 
 __all__ = ["SampleOut", "SamplePageOut", "router"]
 
-router = APIRouter(tags=["samples"])
+router = APIRouter(tags=["samples"], responses=errors())
 
 MAX_SAMPLES = 10_000
 """The most samples one JSON page holds."""
@@ -106,8 +106,7 @@ def _stream(
     response_model=SamplePageOut,
     responses={
         200: {"content": {"application/x-ndjson": {}, "text/csv": {}}},
-        400: {"description": "The run has no samples file."},
-        404: {"description": "No such run."},
+        **errors({400: "The run has no samples file.", 404: "No such run."}),
     },
 )
 def samples(

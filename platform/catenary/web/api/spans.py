@@ -21,7 +21,7 @@ from catenary.maintenance.trends import TrackTrends, history_rows, rate_interval
 from catenary.storage.database import session_scope
 from catenary.storage.models import MaintenanceAction, SpanMeasurement
 from catenary.storage.spans import list_spans
-from catenary.web.api.runs import run_of, track_of
+from catenary.web.api.runs import errors, run_of, track_of
 from catenary.web.app import WebState, state
 from catenary.web.auth import Principal, requires
 
@@ -34,7 +34,7 @@ __all__ = [
     "span_history",
 ]
 
-router = APIRouter(tags=["spans"])
+router = APIRouter(tags=["spans"], responses=errors())
 
 MAX_LIMIT = 1000
 """The most rows one page holds."""
@@ -115,7 +115,7 @@ def _span_out(m: SpanMeasurement, line: str, track: str | None, run_id: int, uui
     )
 
 
-@router.get("/spans", responses={404: {"description": "No such line, track or run."}})
+@router.get("/spans", responses=errors({404: "No such line, track or run."}))
 def spans(
     request: Request,
     user: Annotated[Principal, requires("viewer")],
@@ -375,10 +375,9 @@ def span_history(web: WebState, session: Session, query: SpanQuery) -> SpanHisto
 
 @router.get(
     "/spans/history",
-    responses={
-        400: {"description": "No such mast, or nothing measured there."},
-        404: {"description": "No such line or track."},
-    },
+    responses=errors(
+        {400: "No such mast, or nothing measured there.", 404: "No such line or track."}
+    ),
 )
 def history(
     request: Request,
