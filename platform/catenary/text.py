@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
+from datetime import UTC, datetime
 from typing import Any
 
 from catenary.errors import UserError
@@ -61,3 +62,12 @@ def identifier_option(limit: int) -> Callable[[Any, Any, str | None], str | None
         return value
 
     return check
+
+
+def utc_text(moment: datetime | None) -> str | None:
+    """``moment`` as ISO 8601 in UTC (a naive time is UTC, as the database stores it)."""
+    if moment is None:
+        return None
+    if moment.tzinfo is None:
+        moment = moment.replace(tzinfo=UTC)
+    return moment.astimezone(UTC).isoformat()

@@ -27,15 +27,16 @@ from catenary.maintenance.forecast import (
     CONFIDENCE,
     MIN_RUNS,
     moment_of,
+    reach_text,
 )
-from catenary.maintenance.trends import TrackTrends, rate_interval, track_trends
+from catenary.maintenance.trends import TrackTrends, history_rows, rate_interval, span_trends
 from catenary.plugins import CommandContext
 from catenary.storage.database import session_scope
 from catenary.storage.models import SpanMeasurement
 from catenary.text import printable
 from catenary_reports.plots import LimitLine, TrendSeries, trend_figure, wire_colour
 from catenary_reports.request import check_output
-from catenary_reports.trend_report import reach_text, track_of
+from catenary_reports.trend_report import track_of
 
 __all__ = ["show_history"]
 
@@ -44,28 +45,6 @@ Geometry = tuple[float, float, float, float]
 
 FORECAST_YEARS = 10.0
 """How far past the last run a fitted line is drawn at most [years]."""
-
-
-def _chosen(
-    trends: TrackTrends, where: str, mast: str | None, from_m: float | None, to_m: float | None
-) -> IntArray:
-    """The histories of the stretch asked for, by chainage and position."""
-    hist, data = trends.histories, trends.data
-    if mast is not None:
-        index = int(data.mast_index([mast])[0])
-        if index < 0:
-            codes = data.mast_code
-            known = f"masts {codes[0]} to {codes[-1]}" if codes else "no mast register"
-            raise UserError(f"{where} has no mast {mast!r} ({known})")
-        found = np.flatnonzero(hist.mast_from == index)
-        if found.shape[0] == 0:
-            raise UserError(f"{where}: no span measured from mast {mast!r}")
-    else:
-        assert from_m is not None and to_m is not None
-        found = np.flatnonzero((hist.start_m < to_m) & (hist.end_m > from_m))
-        if found.shape[0] == 0:
-            raise UserError(f"{where}: no span measured between {from_m:g} and {to_m:g} m")
-    return found[np.lexsort((hist.position[found], hist.start_m[found]))]
 
 
 def _geometry(session: Session, ids: IntArray) -> dict[int, Geometry]:
@@ -88,12 +67,6 @@ def _stretch(trends: TrackTrends, h: int) -> str:
     return f"chainage {chainage} (no mast register)"
 
 
-def _rows_of(trends: TrackTrends, h: int) -> IntArray:
-    rows = trends.data.rows
-    found = np.flatnonzero(trends.row_unit == h)
-    return found[np.lexsort((rows.run_id[found], rows.time_years[found]))]
-
-
 def _lines(trends: TrackTrends, h: int, geometry: Mapping[int, Geometry]) -> list[str]:
     """The printed block of history ``h``."""
     data, hist, rows = trends.data, trends.histories, trends.data.rows
@@ -101,7 +74,7 @@ def _lines(trends: TrackTrends, h: int, geometry: Mapping[int, Geometry]) -> lis
     wire_type = trends.wire_type_names[kind] if kind >= 0 else "wire type not registered"
     out = [f"{_stretch(trends, h)}, wire position {hist.position[h]}, {wire_type}"]
     out.append("  run   started            direction    min mm  mean mm  height mm      stagger mm")
-    for row in _rows_of(trends, h).tolist():
+    for row in history_rows(trends, h).tolist():
         run_id = int(rows.run_id[row])
         started = data.run_started[int(np.searchsorted(data.run_id, run_id))]
         low_h, high_h, low_s, high_s = geometry[int(rows.measurement_id[row])]
@@ -143,7 +116,7 @@ def _series(trends: TrackTrends, chosen: IntArray) -> list[TrendSeries]:
     fit = hist.fit
     out = []
     for number, h in enumerate(chosen.tolist()):
-        found = _rows_of(trends, h)
+        found = history_rows(trends, h)
         runs = np.searchsorted(data.run_id, rows.run_id[found])
         times = [data.run_started[int(r)] for r in runs]
         kept = hist.row_history[found] >= 0
@@ -235,10 +208,16 @@ def show_history(
     where = f"line {line} track {track}"
     with context.database() as engine, session_scope(engine, read_only=True) as session:
         track_id = track_of(session, line, track)
-        trends = track_trends(session, track_id, registry.wire_types(), policy)
-        if trends.data.run_id.shape[0] == 0:
-            raise UserError(f"{where} has no complete run")
-        chosen = _chosen(trends, where, mast, from_m, to_m)
+        trends, chosen = span_trends(
+            session,
+            track_id,
+            where,
+            registry.wire_types(),
+            policy,
+            mast=mast,
+            from_m=from_m,
+            to_m=to_m,
+        )
         ids = trends.data.rows.measurement_id[np.isin(trends.row_unit, chosen)]
         geometry = _geometry(session, ids)
     rules = (

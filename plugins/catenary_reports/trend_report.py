@@ -17,7 +17,6 @@ first, with its earliest limit due within the horizon (empty when none).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -29,7 +28,12 @@ from sqlalchemy.orm import Session
 
 from catenary.errors import UserError
 from catenary.maintenance.alerts import horizon_days
-from catenary.maintenance.forecast import CONFIDENCE, MIN_RUNS, moment_of, years_since_epoch
+from catenary.maintenance.forecast import (
+    CONFIDENCE,
+    MIN_RUNS,
+    reach_text,
+    years_since_epoch,
+)
 from catenary.maintenance.trends import TrackTrends, rate_interval, track_trends
 from catenary.measurement.samples import TABLE_SUFFIXES, export_table
 from catenary.plugins import ReportRequest
@@ -39,24 +43,12 @@ from catenary_reports import html
 from catenary_reports.html import Cell, number
 from catenary_reports.request import Option, check_output, parse_request
 
-__all__ = ["OPTIONS", "reach_text", "track_of", "tracks_of", "write"]
+__all__ = ["OPTIONS", "track_of", "tracks_of", "write"]
 
 OPTIONS = {"top": Option(20.0, 1.0, 10_000.0, "rows")}
 """``--set top=N``: how many of the worst wear rates are listed."""
 
 _DAYS_PER_YEAR = 365.25
-
-
-def reach_text(years: float) -> str:
-    """A reach time (``catenary.maintenance.forecast.ReachTimes``) as a date, ``never``
-    (+inf), ``reached`` (-inf) or ``-`` (NaN: no forecast)."""
-    if math.isnan(years):
-        return "-"
-    if math.isinf(years):
-        return "never" if years > 0 else "reached"
-    moment = moment_of(years)
-    assert moment is not None
-    return moment.date().isoformat()
 
 
 def tracks_of(session: Session, line: str | None, track: str | None) -> list[tuple[int, str, str]]:

@@ -8,10 +8,12 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from datetime import UTC, datetime
+from datetime import datetime
 from typing import Any, TypeVar
 
 import click
+
+from catenary.text import utc_text
 
 __all__ = ["FORMATS", "echo_json", "format_option", "utc_text"]
 
@@ -32,15 +34,6 @@ def format_option(*more: str) -> Callable[[F], F]:
         show_default=True,
         help="text: a table for people; json: for programs (README, File formats).",
     )
-
-
-def utc_text(moment: datetime | None) -> str | None:
-    """``moment`` as ISO 8601 in UTC (a naive time is UTC, as the database stores it)."""
-    if moment is None:
-        return None
-    if moment.tzinfo is None:
-        moment = moment.replace(tzinfo=UTC)
-    return moment.astimezone(UTC).isoformat()
 
 
 def _plain(value: Any) -> Any:

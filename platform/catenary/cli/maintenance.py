@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from catenary.cli.app import app_of
-from catenary.cli.listing import echo_json, format_option, utc_text
+from catenary.cli.listing import echo_json, format_option
 from catenary.domain import (
     ALERT_STATUSES,
     CODE_LENGTH,
@@ -160,38 +160,11 @@ def _what(alert: Alert) -> str:
     return f"{scope} {alert.value:.2f} mm, limit {alert.threshold:.2f} mm"
 
 
-def _alert_record(alert: Alert) -> dict[str, Any]:
-    """An alert as ``--format json`` and GeoJSON's properties show it."""
-    return {
-        "id": alert.id,
-        "line": alert.track.line.code,
-        "track": alert.track.code,
-        "wire_position": alert.wire,
-        "mast_from": alert.mast_from,
-        "mast_to": alert.mast_to,
-        "start_chainage_m": alert.start_chainage_m,
-        "end_chainage_m": alert.end_chainage_m,
-        "rule": alert.rule,
-        "level": alert.level,
-        "kind": alert.kind,
-        "value": alert.value,
-        "threshold": alert.threshold,
-        "status": alert.status,
-        "raised_at": utc_text(alert.raised_at),
-        "acknowledged_by": alert.acknowledged_by,
-        "acknowledged_at": utc_text(alert.acknowledged_at),
-        "resolved_at": utc_text(alert.resolved_at),
-        "resolved_by_run_id": alert.resolved_by_run_id,
-        "resolved_by_action_id": alert.resolved_by_action_id,
-        "span_measurement_id": alert.span_measurement_id,
-        "details": alert.details,
-    }
-
-
 def _alerts_geojson(session: Session, found: list[Alert]) -> tuple[dict[str, Any], int]:
     """The alerts as GeoJSON features over their stretch, and how many were left out for
     want of mast coordinates (none on any of their tracks: a ``UserError``)."""
     from catenary.geojson import feature, feature_collection
+    from catenary.maintenance.alerts.lifecycle import alert_json
     from catenary.measurement.export import track_positions
 
     positions = {t: track_positions(session, t)[0] for t in {a.track_id for a in found}}
@@ -204,7 +177,7 @@ def _alerts_geojson(session: Session, found: list[Alert]) -> tuple[dict[str, Any
     for alert in found:
         geometry = positions[alert.track_id].stretch(alert.start_chainage_m, alert.end_chainage_m)
         if geometry is not None:
-            features.append(feature(geometry, _alert_record(alert)))
+            features.append(feature(geometry, alert_json(alert)))
     return feature_collection(features), len(found) - len(features)
 
 
@@ -247,7 +220,7 @@ def list_command(
     coordinates; alerts beyond the masts with coordinates are left out (said on standard
     error)."""
     from catenary.geojson import geojson_text, write_geojson
-    from catenary.maintenance.alerts import list_alerts
+    from catenary.maintenance.alerts.lifecycle import alert_json, list_alerts
     from catenary.storage.database import session_scope
     from catenary.storage.runs import pending_runs
 
@@ -259,7 +232,7 @@ def list_command(
         found = list_alerts(session, status=status, line=line, levels=levels)
         pending = pending_runs(session, line=line)
         if output_format == "json":
-            echo_json([_alert_record(alert) for alert in found])
+            echo_json([alert_json(alert) for alert in found])
         elif output_format == "geojson":
             collection, left_out = _alerts_geojson(session, found)
             if output is None:

@@ -40,6 +40,7 @@ __all__ = [
     "REPAIR_KINDS",
     "Recorded",
     "contains",
+    "list_maintenance",
     "record_maintenance",
     "touches",
 ]
@@ -152,6 +153,28 @@ def record_maintenance(
     target = f"maintenance action {action.id}"
     record_audit(session, actor, "maintenance.record", target, details, at=now)
     return Recorded(action=action, resolved=tuple(resolved))
+
+
+def list_maintenance(
+    session: Session,
+    track: Track | None = None,
+    from_m: float | None = None,
+    to_m: float | None = None,
+    *,
+    limit: int | None = None,
+    offset: int = 0,
+) -> list[MaintenanceAction]:
+    """The maintenance actions (on ``track``; touching ``from_m`` to ``to_m`` [m] as
+    ``touches`` has it), latest performed first; ``limit`` of them from ``offset`` on."""
+    query = select(MaintenanceAction)
+    if track is not None:
+        query = query.where(MaintenanceAction.track_id == track.id)
+    if from_m is not None:
+        query = query.where(MaintenanceAction.to_chainage_m > from_m + COVER_TOLERANCE_M)
+    if to_m is not None:
+        query = query.where(MaintenanceAction.from_chainage_m < to_m - COVER_TOLERANCE_M)
+    query = query.order_by(MaintenanceAction.performed_at.desc(), MaintenanceAction.id.desc())
+    return list(session.scalars(query.limit(limit).offset(offset)))
 
 
 def _resolve_covered(session: Session, action: MaintenanceAction, now: datetime) -> list[int]:

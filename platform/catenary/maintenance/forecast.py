@@ -14,6 +14,7 @@ well under a second. Everything is vectorised over histories, arrays ``(g,)``.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
@@ -33,6 +34,7 @@ __all__ = [
     "WearFit",
     "fit_histories",
     "moment_of",
+    "reach_text",
     "reach_times",
     "years_since_epoch",
 ]
@@ -198,3 +200,15 @@ def reach_times(
         low=np.where(usable, finite_low, nan),
         high=np.where(usable, finite_high, nan),
     )
+
+
+def reach_text(years: float) -> str:
+    """A reach time (``catenary.maintenance.forecast.ReachTimes``) as a date, ``never``
+    (+inf), ``reached`` (-inf) or ``-`` (NaN: no forecast)."""
+    if math.isnan(years):
+        return "-"
+    if math.isinf(years):
+        return "never" if years > 0 else "reached"
+    moment = moment_of(years)
+    assert moment is not None
+    return moment.date().isoformat()

@@ -14,22 +14,28 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats
+from sqlalchemy import ColumnElement
 from sqlalchemy.orm import Session
 
 from catenary.arrays import BoolArray, FloatArray, IntArray, take
+from catenary.errors import UserError
 from catenary.limits import LimitPolicy
 from catenary.maintenance.alerts.rules import LOCAL, Rule, rules_of
 from catenary.maintenance.alerts.trackdata import TrackData, history_keys, match_units
 from catenary.maintenance.forecast import CONFIDENCE, MIN_RUNS, ReachTimes, WearFit, reach_times
 from catenary.maintenance.history import SpanHistories, span_histories
+from catenary.storage.models import SpanMeasurement
 from catenary.wiretype import WireType
 
 __all__ = [
     "LimitForecast",
     "RunComparison",
     "TrackTrends",
+    "chosen_histories",
     "compare_with_previous",
+    "history_rows",
     "rate_interval",
+    "span_trends",
     "track_trends",
 ]
 
@@ -77,13 +83,15 @@ def track_trends(
     track_id: int,
     wire_types: Mapping[str, WireType],
     policy: LimitPolicy | None,
+    rows_where: ColumnElement[bool] | None = None,
 ) -> TrackTrends:
-    """Read track ``track_id`` (its complete runs' latest processings) and forecast the local
-    rules of ``policy`` (none without one) on its histories. Raises ``UserError`` for a policy
-    limit a wire type cannot reach."""
+    """Read track ``track_id`` (its complete runs' latest processings; ``rows_where``: only
+    those span rows, ``TrackData``) and forecast the local rules of ``policy`` (none without
+    one) on its histories. Raises ``UserError`` for a policy limit a wire type cannot
+    reach."""
     types = [wire_types[name] for name in sorted(wire_types)]
     names = [w.name for w in types]
-    data = TrackData(session, track_id, names or ["-"])  # none: a CASE of no WHEN
+    data = TrackData(session, track_id, names or ["-"], rows_where)  # none: a CASE of no WHEN
     rows = data.rows
     hist = span_histories(rows, data.repairs)
     keys = history_keys(hist.mast_from, hist.mast_to, hist.start_m, hist.end_m, hist.position)
@@ -104,6 +112,66 @@ def track_trends(
         wire_type_names=names,
         limits=limits,
     )
+
+
+def chosen_histories(
+    trends: TrackTrends, where: str, mast: str | None, from_m: float | None, to_m: float | None
+) -> IntArray:
+    """The histories of the span starting at mast ``mast``, or of the spans between ``from_m``
+    and ``to_m`` [m], by chainage and position; a ``UserError`` (naming the track ``where``)
+    for an unknown mast or no span measured there."""
+    hist, data = trends.histories, trends.data
+    if mast is not None:
+        index = int(data.mast_index([mast])[0])
+        if index < 0:
+            codes = data.mast_code
+            known = f"masts {codes[0]} to {codes[-1]}" if codes else "no mast register"
+            raise UserError(f"{where} has no mast {mast!r} ({known})")
+        found = np.flatnonzero(hist.mast_from == index)
+        if found.shape[0] == 0:
+            raise UserError(f"{where}: no span measured from mast {mast!r}")
+    else:
+        if from_m is None or to_m is None:
+            raise UserError("give a mast, or both ends of a chainage range")
+        found = np.flatnonzero((hist.start_m < to_m) & (hist.end_m > from_m))
+        if found.shape[0] == 0:
+            raise UserError(f"{where}: no span measured between {from_m:g} and {to_m:g} m")
+    return found[np.lexsort((hist.position[found], hist.start_m[found]))]
+
+
+def history_rows(trends: TrackTrends, h: int) -> IntArray:
+    """The span rows of history ``h`` (those before its last repair too), oldest run first."""
+    rows = trends.data.rows
+    found = np.flatnonzero(trends.row_unit == h)
+    return found[np.lexsort((rows.run_id[found], rows.time_years[found]))]
+
+
+def span_trends(
+    session: Session,
+    track_id: int,
+    where: str,
+    wire_types: Mapping[str, WireType],
+    policy: LimitPolicy | None,
+    *,
+    mast: str | None = None,
+    from_m: float | None = None,
+    to_m: float | None = None,
+) -> tuple[TrackTrends, IntArray]:
+    """The trends of the span starting at mast ``mast`` (or of the spans between ``from_m``
+    and ``to_m`` [m]) of track ``track_id``, reading only their rows, and their histories
+    (``chosen_histories``); a ``UserError`` naming ``where`` when the track has no complete
+    run or nothing was measured there."""
+    sm = SpanMeasurement
+    if mast is not None:
+        rows_where = sm.mast_from == mast
+    elif from_m is not None and to_m is not None:
+        rows_where = (sm.start_chainage_m < to_m) & (sm.end_chainage_m > from_m)
+    else:
+        raise UserError("give a mast, or both ends of a chainage range")
+    trends = track_trends(session, track_id, wire_types, policy, rows_where)
+    if trends.data.run_id.shape[0] == 0:
+        raise UserError(f"{where} has no complete run")
+    return trends, chosen_histories(trends, where, mast, from_m, to_m)
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from catenary.measurement.spans import SPAN_SCHEMA, span_table
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Mast, Run, SpanMeasurement
 from catenary.storage.runs import find_run
+from catenary.storage.spans import wire_positions_of
 from catenary.storage.store import open_store
 from catenary.text import printable
 
@@ -71,14 +72,7 @@ def export_run(settings: Settings, reference: str, what: str, output: Path) -> E
             written = export_table(iter([span_table(rows)]), SPAN_SCHEMA, output)
         else:
             samples = run_samples(open_store(settings), run)
-            positions = {
-                (s.span, s.wire): s.wire_position
-                for s in session.scalars(
-                    select(SpanMeasurement).where(
-                        SpanMeasurement.processing_id == run.processing_id
-                    )
-                )
-            }
+            positions = wire_positions_of(session, run.processing_id)
             tables, schema = with_wire_positions(samples, positions)
             written = export_table(tables, schema, output, sample_rows(samples))
         return Exported(written, run.id)

@@ -30,7 +30,7 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
-from catenary.arrays import BoolArray
+from catenary.arrays import BoolArray, IntArray
 from catenary.errors import FormatError, UserError
 from catenary.measurement.compare import RunProfile
 from catenary.measurement.spreadsheet import SHEET_ROWS, XlsxTableWriter, for_people
@@ -46,6 +46,7 @@ __all__ = [
     "STDOUT",
     "TABLE_SUFFIXES",
     "TRUST_COLUMNS",
+    "SamplePage",
     "SampleWriter",
     "StoredSamples",
     "export_table",
@@ -54,6 +55,7 @@ __all__ = [
     "run_profile",
     "run_samples",
     "sample_rows",
+    "samples_in_range",
     "stored_samples_key",
     "trusted",
     "with_wire_positions",
@@ -385,18 +387,18 @@ def export_schema(path: SamplesSource, columns: tuple[str, ...] = FILE_COLUMNS) 
     )
 
 
-def with_wire_positions(
-    source: SamplesSource, positions: Mapping[tuple[int, int], int]
-) -> tuple[Iterator[pa.Table], pa.Schema]:
-    """The ``samples`` export of a samples file: its ``FILE_COLUMNS`` and each row's
-    ``wire_position`` from ``positions`` (the span measurements' ``(span, wire)`` ->
-    ``wire_position``; empty outside every span measured), as tables and their schema."""
+def _positions_schema(source: SamplesSource) -> pa.Schema:
+    """The ``samples`` export's schema of a samples file (``wire_position`` added)."""
     file_schema = export_schema(source)
-    schema = pa.schema(
+    return pa.schema(
         [pa.field("wire_position", pa.int32()) if c == "wire_position" else file_schema.field(c)
          for c in EXPORT_COLUMNS]
     )  # fmt: skip
-    # (span + 1, wire) -> position, -1 for none: a row outside every span has span -1
+
+
+def _position_lookup(positions: Mapping[tuple[int, int], int]) -> np.ndarray[Any, Any]:
+    """``(span + 1, wire)`` -> wire position, -1 for none (a row outside every span has span
+    -1), ``(spans + 1, wires)``."""
     lookup = np.full(
         (
             max((k[0] for k in positions), default=-1) + 2,
@@ -407,19 +409,94 @@ def with_wire_positions(
     )
     for (span, wire), position in positions.items():
         lookup[span + 1, wire] = position
+    return lookup
+
+
+def _positioned(table: pa.Table, lookup: np.ndarray[Any, Any], schema: pa.Schema) -> pa.Table:
+    """A table of ``FILE_COLUMNS`` and ``span`` as the ``samples`` export (``schema``)."""
+    span = table.column("span").to_numpy(zero_copy_only=False).astype(np.int64) + 1
+    wire = table.column("wire").to_numpy(zero_copy_only=False).astype(np.int64)
+    inside = (span >= 0) & (span < lookup.shape[0]) & (wire >= 0) & (wire < lookup.shape[1])
+    found = np.full(span.shape, -1, dtype=np.int32)
+    found[inside] = lookup[span[inside], wire[inside]]
+    columns = {c: table.column(c) for c in FILE_COLUMNS}
+    columns["wire_position"] = pa.array(found, pa.int32(), mask=found < 0)
+    return pa.table(columns).select(list(EXPORT_COLUMNS)).cast(schema)
+
+
+def with_wire_positions(
+    source: SamplesSource, positions: Mapping[tuple[int, int], int]
+) -> tuple[Iterator[pa.Table], pa.Schema]:
+    """The ``samples`` export of a samples file: its ``FILE_COLUMNS`` and each row's
+    ``wire_position`` from ``positions`` (the span measurements' ``(span, wire)`` ->
+    ``wire_position``; empty outside every span measured), as tables and their schema."""
+    schema = _positions_schema(source)
+    lookup = _position_lookup(positions)
 
     def tables() -> Iterator[pa.Table]:
         for table in sample_tables(source, (*FILE_COLUMNS, "span")):
-            span = table.column("span").to_numpy(zero_copy_only=False).astype(np.int64) + 1
-            wire = table.column("wire").to_numpy(zero_copy_only=False).astype(np.int64)
-            inside = (span >= 0) & (span < lookup.shape[0]) & (wire >= 0) & (wire < lookup.shape[1])
-            found = np.full(span.shape, -1, dtype=np.int32)
-            found[inside] = lookup[span[inside], wire[inside]]
-            columns = {c: table.column(c) for c in FILE_COLUMNS}
-            columns["wire_position"] = pa.array(found, pa.int32(), mask=found < 0)
-            yield pa.table(columns).select(list(EXPORT_COLUMNS)).cast(schema)
+            yield _positioned(table, lookup, schema)
 
     return tables(), schema
+
+
+@dataclass(frozen=True)
+class SamplePage:
+    """Samples of a chainage range as the ``samples`` export (``table``), and the cursor of
+    the next page (``next_after``: the file row to read after; None on the last page)."""
+
+    table: pa.Table
+    next_after: int | None
+
+
+def samples_in_range(
+    source: SamplesSource,
+    positions: Mapping[tuple[int, int], int],
+    from_m: float,
+    to_m: float,
+    *,
+    after: int = -1,
+    limit: int,
+) -> SamplePage:
+    """The samples with chainage from ``from_m`` to ``to_m`` [m] of a samples file, as the
+    ``samples`` export (``with_wire_positions``): at most ``limit``, from the file row after
+    ``after`` on, in file order (scan, wire). Only the row groups whose chainage statistics
+    reach the range are read."""
+    handle = _open(source)
+    held, added = _columns(source, handle, (*FILE_COLUMNS, "span"))
+    schema = _positions_schema(source)
+    lookup = _position_lookup(positions)
+    chainage = handle.schema_arrow.get_field_index("chainage_m")
+    parts: list[pa.Table] = []
+    rows: list[IntArray] = []
+    taken, first = 0, 0
+    for group in range(handle.num_row_groups):
+        meta = handle.metadata.row_group(group)
+        start, first = first, first + meta.num_rows
+        stats = meta.column(chainage).statistics
+        outside = (
+            stats is not None and stats.has_min_max and (stats.max < from_m or stats.min > to_m)
+        )
+        if outside or first - 1 <= after:
+            continue
+        table = handle.read_row_group(group, columns=held)
+        for name in added:
+            table = table.append_column(
+                name, pa.array(np.full(table.num_rows, ADDED_COLUMNS[name]))
+            )
+        row = np.arange(start, first, dtype=np.int64)
+        metres = table.column("chainage_m").to_numpy(zero_copy_only=False)
+        keep = np.flatnonzero((metres >= from_m) & (metres <= to_m) & (row > after))
+        keep = keep[: limit + 1 - taken]
+        parts.append(_positioned(table.take(pa.array(keep)), lookup, schema))
+        rows.append(row[keep])
+        taken += keep.shape[0]
+        if taken > limit:
+            break
+    table = pa.concat_tables(parts) if parts else schema.empty_table()
+    if taken <= limit:
+        return SamplePage(table, None)
+    return SamplePage(table.slice(0, limit), int(np.concatenate(rows)[limit - 1]))
 
 
 def stored_samples_key(run: object, key: str) -> str:

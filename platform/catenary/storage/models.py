@@ -381,6 +381,7 @@ class SpanMeasurement(Base):
             onupdate="CASCADE",
         ),
         Index(None, "track_id", "start_chainage_m"),
+        Index(None, "track_id", "mast_from"),  # a span's history (``span_trends``)
         CheckConstraint("wire >= 0", name="wire_not_negative"),
         CheckConstraint("wire_position >= 0", name="wire_position_not_negative"),
         CheckConstraint("samples >= 0", name="samples_not_negative"),

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import (
     case,
@@ -26,6 +26,7 @@ from catenary.storage.models import (
     Track,
 )
 from catenary.storage.users import record_audit
+from catenary.text import utc_text
 
 if TYPE_CHECKING:
     from catenary.plugins import PluginRegistry
@@ -33,6 +34,7 @@ if TYPE_CHECKING:
 __all__ = [
     "ACTIVE",
     "acknowledge_alert",
+    "alert_json",
     "announce_alerts",
     "iso_utc",
     "list_alerts",
@@ -51,8 +53,17 @@ def list_alerts(
     status: str = "active",
     line: str | None = None,
     levels: Sequence[str] = (),
+    *,
+    track: str | None = None,
+    kinds: Sequence[str] = (),
+    from_m: float | None = None,
+    to_m: float | None = None,
+    limit: int | None = None,
+    offset: int = 0,
 ) -> list[Alert]:
-    """Alerts as a planner reads them: most severe level first, then line, track, chainage.
+    """Alerts as a planner reads them: most severe level first, then line, track, chainage;
+    those overlapping ``from_m`` to ``to_m`` [m] if given; ``limit`` of them (all: None) from
+    ``offset`` on.
 
     ``status``: one of ``ALERT_STATUSES``, ``active`` (open and acknowledged) or ``all``.
     """
@@ -66,17 +77,51 @@ def list_alerts(
         raise UserError(f"unknown alert status {status!r} (known: {known})")
     if line is not None:
         query = query.where(Line.code == line)
+    if track is not None:
+        query = query.where(Track.code == track)
     if levels:
         query = query.where(Alert.level.in_(levels))
+    if kinds:
+        query = query.where(Alert.kind.in_(kinds))
+    if from_m is not None:
+        query = query.where(Alert.end_chainage_m > from_m)
+    if to_m is not None:
+        query = query.where(Alert.start_chainage_m < to_m)
     severity = case(_SEVERITY, value=Alert.level, else_=len(_SEVERITY))
     kind = case({"threshold": 0}, value=Alert.kind, else_=1)
-    return list(
-        session.scalars(
-            query.order_by(
-                severity, Line.code, Track.code, Alert.start_chainage_m, Alert.wire, kind, Alert.id
-            )
-        )
+    query = query.order_by(
+        severity, Line.code, Track.code, Alert.start_chainage_m, Alert.wire, kind, Alert.id
     )
+    return list(session.scalars(query.limit(limit).offset(offset)))
+
+
+def alert_json(alert: Alert) -> dict[str, Any]:
+    """An alert as JSON (``catenary alerts list --format json``, the web API), its track and line
+    loaded."""
+    return {
+        "id": alert.id,
+        "line": alert.track.line.code,
+        "track": alert.track.code,
+        "wire_position": alert.wire,
+        "mast_from": alert.mast_from,
+        "mast_to": alert.mast_to,
+        "start_chainage_m": alert.start_chainage_m,
+        "end_chainage_m": alert.end_chainage_m,
+        "rule": alert.rule,
+        "level": alert.level,
+        "kind": alert.kind,
+        "value": alert.value,
+        "threshold": alert.threshold,
+        "status": alert.status,
+        "raised_at": utc_text(alert.raised_at),
+        "acknowledged_by": alert.acknowledged_by,
+        "acknowledged_at": utc_text(alert.acknowledged_at),
+        "resolved_at": utc_text(alert.resolved_at),
+        "resolved_by_run_id": alert.resolved_by_run_id,
+        "resolved_by_action_id": alert.resolved_by_action_id,
+        "span_measurement_id": alert.span_measurement_id,
+        "details": alert.details,
+    }
 
 
 def _alert(session: Session, alert_id: int) -> Alert:

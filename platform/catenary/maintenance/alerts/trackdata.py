@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 from sqlalchemy import (
     BigInteger,
+    ColumnElement,
     Float,
     Integer,
     and_,
@@ -77,9 +78,19 @@ class TrackData:
     hashes each row's names instead of joining the masts twice and comparing wire type names,
     which halves the query; two names sharing a hash, about one track in 10**13, is refused),
     elsewhere the masts' ids, joined, and the wire types' indices.
+
+    ``rows_where``: a condition on ``SpanMeasurement`` that keeps only some of the track's
+    rows (one span's: ``catenary.maintenance.trends.span_trends``); masts, runs and repairs
+    are the whole track's.
     """
 
-    def __init__(self, session: Session, track_id: int, wire_type_names: Sequence[str]) -> None:
+    def __init__(
+        self,
+        session: Session,
+        track_id: int,
+        wire_type_names: Sequence[str],
+        rows_where: ColumnElement[bool] | None = None,
+    ) -> None:
         self.track_id = track_id
         self.hashed = session.get_bind().dialect.name == "postgresql"
         key = func.hashtextextended(Mast.code, 0) if self.hashed else Mast.id
@@ -121,7 +132,7 @@ class TrackData:
         self.run_started: list[datetime] = [r.started_at for r in runs]
         self.run_years = years_since_epoch(self.run_started)
         self.run_sign = np.array([-1.0 if r.direction == "decreasing" else 1.0 for r in runs])
-        self.rows = self._rows(session, wire_type_names)
+        self.rows = self._rows(session, wire_type_names, rows_where)
         repairs = session.execute(
             select(
                 MaintenanceAction.from_chainage_m,
@@ -156,7 +167,12 @@ class TrackData:
             self.mast_chainage[self.section_end] - self.mast_chainage[first] if k else np.zeros(0)
         )
 
-    def _rows(self, session: Session, wire_type_names: Sequence[str]) -> SpanRows:
+    def _rows(
+        self,
+        session: Session,
+        wire_type_names: Sequence[str],
+        rows_where: ColumnElement[bool] | None,
+    ) -> SpanRows:
         sm = SpanMeasurement
         start, end = aliased(Mast), aliased(Mast)
         if self.hashed:
@@ -208,6 +224,8 @@ class TrackData:
             .join(sm, and_(sm.run_id == Run.id, sm.processing_id == Run.processing_id))
             .where(Run.track_id == self.track_id, Run.status == "complete")
         )
+        if rows_where is not None:
+            query = query.where(sm.track_id == self.track_id, rows_where)
         if not self.hashed:
             query = query.outerjoin(
                 start, and_(start.track_id == Run.track_id, start.code == sm.mast_from)
