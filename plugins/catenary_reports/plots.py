@@ -1,11 +1,11 @@
 """Plots along the chainage: min/max envelopes per pixel column, drawn by matplotlib as SVG.
 
 A run holds a sample every few centimetres over kilometres; a plot has about a thousand pixel
-columns. :class:`EnvelopeGrid` keeps, batch by batch, each wire's minimum and maximum of each
-quantity per column (``bin_m`` of chainage), and :func:`envelope_path` draws them as a line
-through every column's minimum and maximum: the picture is that of every sample drawn at the
-plot's resolution, and no local minimum (a hot spot) is ever averaged away. Memory is the
-number of columns, whatever the run's length.
+columns. :class:`~catenary.measurement.envelope.EnvelopeGrid` (the core's) keeps, batch by
+batch, each wire's minimum and maximum of each quantity per column, and the plots draw them as
+a line through every column's minimum and maximum: the picture is that of every sample drawn
+at the plot's resolution, and no local minimum (a hot spot) is ever averaged away. Memory is
+the number of columns, whatever the run's length.
 
 Figures use matplotlib's object API (``Figure``, no pyplot and no global state), written as
 SVG with text kept as text, ids salted per figure so that several can share one page.
@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import io
 import re
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
 
@@ -24,22 +24,19 @@ from matplotlib import rc_context
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
-from numpy.typing import NDArray
 
 from catenary.arrays import FloatArray, IntArray
+from catenary.measurement.envelope import EnvelopeGrid
 
 __all__ = [
     "LEVEL_COLOURS",
     "PLOT_COLUMNS",
     "Boundary",
-    "EnvelopeGrid",
     "LimitLine",
     "Marker",
     "Panel",
     "Series",
     "TrendSeries",
-    "envelope",
-    "envelope_path",
     "histogram_figure",
     "profile_figure",
     "svg",
@@ -53,113 +50,6 @@ PLOT_COLUMNS = 1100
 WIRE_COLOURS = ("#1f6fb4", "#f07f0e", "#2a9d3a", "#8c4fb8", "#17a2b8", "#a05a2c")
 LEVEL_COLOURS = {"plan": "#b08900", "urgent": "#d9600f", "critical": "#c0231a"}
 MAST_COLOUR = "#8a94a3"
-
-
-def envelope(
-    position_m: FloatArray, values: FloatArray, start_m: float, bin_m: float, bins: int
-) -> tuple[FloatArray, FloatArray]:
-    """Minimum and maximum of ``values`` per bin ``[start_m + i bin_m, start_m + (i+1) bin_m)``.
-
-    Parameters
-    ----------
-    position_m, values : ndarray, shape (n,)
-        Where each value lies [m] and the values; NaN values are left out. Positions outside
-        ``[start_m, start_m + bins·bin_m]`` are left out (the end itself is in the last bin).
-    start_m, bin_m : float
-        The first bin's start and the bins' width [m].
-    bins : int
-        Number of bins.
-
-    Returns
-    -------
-    low, high : ndarray, shape (bins,)
-        NaN where a bin holds no value.
-    """
-    low = np.full(bins, np.inf)
-    high = np.full(bins, -np.inf)
-    _gather(low, high, position_m, values, start_m, bin_m)
-    return _finish(low), _finish(high)
-
-
-def _gather(
-    low: FloatArray,
-    high: FloatArray,
-    position_m: FloatArray,
-    values: FloatArray,
-    start_m: float,
-    bin_m: float,
-) -> None:
-    bins = low.shape[0]
-    offset = (np.asarray(position_m, np.float64) - start_m) / bin_m
-    keep = np.isfinite(values) & (offset >= 0.0) & (offset <= bins)
-    index = np.minimum(offset[keep].astype(np.intp), bins - 1)
-    np.minimum.at(low, index, values[keep])
-    np.maximum.at(high, index, values[keep])
-
-
-def _finish(extreme: FloatArray) -> FloatArray:
-    return np.where(np.isfinite(extreme), extreme, np.nan)
-
-
-class EnvelopeGrid:
-    """Per-bin minimum and maximum of ``quantities`` for each wire, gathered batch by batch."""
-
-    def __init__(self, start_m: float, bin_m: float, bins: int, quantities: Sequence[str]):
-        self.start_m, self.bin_m, self.bins = start_m, bin_m, bins
-        self.quantities = tuple(quantities)
-        self._low: dict[tuple[int, str], FloatArray] = {}
-        self._high: dict[tuple[int, str], FloatArray] = {}
-
-    def add(
-        self, position_m: FloatArray, wire: NDArray[np.integer], values: Mapping[str, FloatArray]
-    ) -> None:
-        """Gather one batch: ``(m,)`` positions, wire numbers and a ``(m,)`` array per
-        quantity."""
-        for number in np.unique(wire):
-            rows = wire == number
-            for quantity in self.quantities:
-                key = (int(number), quantity)
-                if key not in self._low:
-                    self._low[key] = np.full(self.bins, np.inf)
-                    self._high[key] = np.full(self.bins, -np.inf)
-                _gather(
-                    self._low[key],
-                    self._high[key],
-                    position_m[rows],
-                    values[quantity][rows],
-                    self.start_m,
-                    self.bin_m,
-                )
-
-    @property
-    def wires(self) -> list[int]:
-        return sorted({wire for wire, _ in self._low})
-
-    def series(
-        self, wire: int, quantity: str, first: int, last: int
-    ) -> tuple[FloatArray, FloatArray]:
-        """``envelope_path`` of bins ``first`` to ``last`` (exclusive) of one wire."""
-        low = _finish(self._low[(wire, quantity)][first:last])
-        high = _finish(self._high[(wire, quantity)][first:last])
-        return envelope_path(self.start_m + first * self.bin_m, self.bin_m, low, high)
-
-    def has_data(self, wire: int, quantity: str, first: int, last: int) -> bool:
-        """Whether the wire has any value of ``quantity`` in bins ``first:last``."""
-        low = self._low.get((wire, quantity))
-        return low is not None and bool(np.isfinite(low[first:last]).any())
-
-
-def envelope_path(
-    start_m: float, bin_m: float, low: FloatArray, high: FloatArray
-) -> tuple[FloatArray, FloatArray]:
-    """The vertices of a line through each bin's minimum then maximum, at the bin's centre;
-    broken (a NaN vertex) at each run of empty bins. Shapes ``(2k,)``."""
-    centre = start_m + (np.arange(low.shape[0]) + 0.5) * bin_m
-    x = np.repeat(centre, 2)
-    y = np.column_stack([low, high]).ravel()
-    empty = ~np.isfinite(y)
-    keep = ~empty | np.concatenate([[False], ~empty[:-1]])  # one NaN per gap, none leading
-    return x[keep], y[keep]
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,7 @@ import pyarrow as pa
 
 from catenary.errors import UserError
 from catenary.measurement.compare import Comparison, compare_profiles
+from catenary.measurement.envelope import EnvelopeGrid
 from catenary.measurement.samples import export_table, run_profile
 from catenary.plugins import ReportRequest
 from catenary.storage.database import open_database, session_scope
@@ -29,7 +30,6 @@ from catenary_reports import html
 from catenary_reports.plots import (
     PLOT_COLUMNS,
     Boundary,
-    EnvelopeGrid,
     LimitLine,
     Panel,
     Series,

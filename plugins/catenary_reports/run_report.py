@@ -37,6 +37,7 @@ from catenary.maintenance.trends import (
     compare_with_previous,
     track_trends,
 )
+from catenary.measurement.envelope import EnvelopeGrid
 from catenary.measurement.evidence import evidence_key
 from catenary.measurement.samples import (
     TRUST_COLUMNS,
@@ -57,7 +58,6 @@ from catenary_reports.html import Cell, number
 from catenary_reports.plots import (
     PLOT_COLUMNS,
     Boundary,
-    EnvelopeGrid,
     LimitLine,
     Marker,
     Panel,

@@ -23,9 +23,10 @@ from catenary.cli import cli
 from catenary.config import load_settings
 from catenary.errors import UserError
 from catenary.fleet.transfer import push, run_file_key
+from catenary.measurement.samples import SampleWriter
 from catenary.storage.database import make_engine, session_scope
 from catenary.storage.models import Alert, Mast, Processing, Run, SpanMeasurement
-from catenary.storage.store import StoreError, open_store
+from catenary.storage.store import StoreError, envelope_key, open_store
 
 POLICY = """
     [policies.every-span]
@@ -122,8 +123,13 @@ def test_runs_processed_offline_are_pushed_whole_and_read_centrally(
 
     crops = sorted(p.name for p in (depot.data_dir / "evidence").rglob("*.png"))
     assert crops  # a crop per span and wire, each run
+    vehicle_store = open_store(load_settings(database_url=depot.vehicle))
+    copied, built = vehicle_store.keys("envelopes")
+    envelopes = {k.split("/run=")[1]: pq.read_table(depot.data_dir / k) for k in (copied, built)}
+    vehicle_store.delete(built)  # as of a processing stored before envelope files
     output = succeeded(depot.on_vehicle("push", "--to", depot.central))
-    assert f"pushed 2 new run(s), 2 processing(s), {2 + len(crops)} object(s)" in output
+    # each processing's samples and envelope files, and the crops
+    assert f"pushed 2 new run(s), 2 processing(s), {4 + len(crops)} object(s)" in output
     assert f"run {first}: processing " in output and f"run {second}: processing " in output
     assert "alerts     " in output and "central" in output
     # the vehicle's data directory goes: the central side has all it needs
@@ -133,6 +139,17 @@ def test_runs_processed_offline_are_pushed_whole_and_read_centrally(
     assert depot.central_count(Alert) > 0
     central_store = open_store(load_settings(config_path=depot.central, environ={}))
     assert sorted(k.rsplit("/", 1)[1] for k in central_store.keys("evidence")) == crops
+    # the envelope files beside the central samples: the vehicle's copied, the missing built
+    engine = make_engine(depot.central_url)
+    try:
+        with session_scope(engine, read_only=True) as session:
+            central_samples = [p.samples_key for p in session.scalars(select(Processing))]
+    finally:
+        engine.dispose()
+    for key in central_samples:
+        assert key is not None
+        with central_store.open_input(envelope_key(key)) as source:
+            assert pq.read_table(source).equals(envelopes[key.split("/run=")[1]])
     report = tmp_path / "run.html"
     succeeded(depot.centrally("report", "run", first[:8], "-o", report))
     assert first in report.read_text()
@@ -261,7 +278,7 @@ def test_a_run_cut_at_other_masts_than_the_central_registers_is_refused(
     store = open_store(vehicle)
     (depot.data_dir / "samples").mkdir(parents=True, exist_ok=True)
     source = depot.data_dir / "x.parquet"
-    source.write_bytes(b"PAR1")
+    SampleWriter(source).close()  # no rows: its envelope file is built empty
     store.put_file(source, "samples/x.parquet")
     central = load_settings(config_path=depot.central, environ={})
     with pytest.raises(UserError, match=r"mast M2 is at 1050.0 m here, 1052.5 m centrally"):

@@ -50,7 +50,7 @@ from catenary.plugins import PluginRegistry, Processor, hookimpl
 from catenary.storage import migrate
 from catenary.storage.database import make_engine, session_scope
 from catenary.storage.models import Mast, Run, SpanMeasurement, run_uuid
-from catenary.storage.store import open_store, samples_key
+from catenary.storage.store import envelope_key, open_store, samples_key
 from catenary_linescan.simulator import DEMO_RIG_PATH, load_rig, record_run
 from catenary_linescan.simulator.captures import write_captures
 
@@ -544,6 +544,7 @@ def test_a_process_killed_while_it_stored_leaves_an_object_the_next_one_resolves
         processing = uuid.UUID(made * 32)
         key = samples_key("L/1", "1", "run", str(processing))
         store.put_file(source, key)
+        store.put_bytes(b"PAR1", envelope_key(key))
         store.put_bytes(b"PNG", evidence_key(str(processing), 0, 0))
         hidden = (
             folder / f".samples-{host}-{int(gone.stdout)}-{processing.hex}{fingerprint}.parquet"
@@ -562,6 +563,7 @@ def test_a_process_killed_while_it_stored_leaves_an_object_the_next_one_resolves
         [
             str(placed["committed"][1]),
             *map(str, placed["not committed"]),
+            envelope_key(placed["not committed"][0]),
             evidence_key(not_committed, 0, 0),
         ]
     )
@@ -570,6 +572,9 @@ def test_a_process_killed_while_it_stored_leaves_an_object_the_next_one_resolves
     )
     assert store.keys("samples") == sorted(
         [placed["committed"][0], placed["another database's"][0]]
+    )
+    assert store.keys("envelopes") == sorted(
+        envelope_key(placed[name][0]) for name in ("committed", "another database's")
     )
     assert [p.name for p in folder.glob(".*")] == [placed["another database's"][1].name]
 

@@ -9,10 +9,11 @@ from sqlalchemy import create_engine, select
 from sqlalchemy.orm import Session
 
 from catenary.config import load_settings
+from catenary.measurement.envelope import EnvelopeGrid, envelope, envelope_path
 from catenary.measurement.samples import run_samples
 from catenary.storage.models import Run
 from catenary.storage.store import open_store
-from catenary_reports.plots import PLOT_COLUMNS, EnvelopeGrid, envelope, envelope_path
+from catenary_reports.plots import PLOT_COLUMNS
 from catenary_reports.run_report import PANELS, _extent, _grid
 
 

@@ -10,14 +10,14 @@ What moves, and how a push stays whole:
 - **Runs and processings by identity.** A run is its UUID (its content), a processing its
   own UUID: pushing twice, or the same run from two vehicles, stores the run once, and a run
   processed again after a push is pushed as a new processing.
-- **Objects first, then one transaction per processing.** Each samples file and its image
-  evidence are put in the central store under their portable keys and read back (size and
-  SHA-256); then one central
-  transaction adds what is new of the line, track and masts, the vehicle and rig calibration,
-  the run, and the processing with its span measurements, and makes the run's newest
-  processing its latest. A push cut at any point (the link drops, the process is killed)
-  leaves the processings committed so far, each whole, and objects nobody refers to yet; the
-  next push finds the object in place (checked by reading it back) and commits the rest.
+- **Objects first, then one transaction per processing.** Each samples file, its envelope file
+  (built from the samples for a processing stored before there were any) and its image evidence are
+  put in the central store under their portable keys and read back (size and SHA-256); then one
+  central transaction adds what is new of the line, track and masts, the vehicle and rig
+  calibration, the run, and the processing with its span measurements, and makes the run's newest
+  processing its latest. A push cut at any point (the link drops, the process is killed) leaves the
+  processings committed so far, each whole, and objects nobody refers to yet; the next push finds
+  the object in place (checked by reading it back) and commits the rest.
 - **The register is the central one.** A processing whose spans were cut at masts that the
   central register places elsewhere (or lacks) is refused, naming the first such mast: pull
   and process again. A track the central side has no mast of takes the vehicle's masts.
@@ -44,7 +44,9 @@ from sqlalchemy.orm import Session, selectinload
 from catenary.config import Settings
 from catenary.domain import OPTIONAL_MAST_NUMBERS, TrackRegister, VehicleGeometry
 from catenary.errors import UserError
+from catenary.measurement.envelope import write_envelopes
 from catenary.measurement.evidence import evidence_prefix
+from catenary.measurement.samples import StoredSamples
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import (
     Line,
@@ -56,7 +58,7 @@ from catenary.storage.models import (
 )
 from catenary.storage.rigs import register_rig_calibration
 from catenary.storage.runs import register_track, track_masts
-from catenary.storage.store import Store, StoredObject, open_store, samples_key
+from catenary.storage.store import Store, StoredObject, envelope_key, open_store, samples_key
 
 __all__ = ["PullResult", "PushResult", "pull", "push", "run_file_key"]
 
@@ -135,6 +137,7 @@ def push(
             for item, size in zip(outgoing, sizes, strict=True):
                 placed = _send_samples(item, local_store, central_store, Path(scratch))
                 evidence = _send_evidence(item.processing.uuid, local_store, central_store)
+                evidence += _send_envelopes(item.processing, placed.key, local_store, central_store)
                 result.objects += 1 + len(evidence)
                 result.bytes += placed.size_bytes + sum(e.size_bytes for e in evidence)
                 run_id, stored, latest = _commit(central_engine, item, placed)
@@ -256,6 +259,26 @@ def _send_evidence(processing_uuid: str, local: Store, central: Store) -> list[S
         with local.open_input(key) as source:
             sent.append(central.put_bytes(source.read(), key))
     return sent
+
+
+def _send_envelopes(
+    processing: Processing, central_key: str, local: Store, central: Store
+) -> list[StoredObject]:
+    """Put the envelope file of the processing's samples (now at ``central_key``) in the
+    central store: the vehicle's, unless the same is there; built from the vehicle's samples
+    where the vehicle has none (a processing stored before envelope files) and the central
+    store neither."""
+    assert processing.samples_key is not None
+    mine, theirs = envelope_key(processing.samples_key), envelope_key(central_key)
+    if not local.exists(mine):
+        if central.exists(theirs):
+            return []
+        return [write_envelopes(central, central_key, StoredSamples(local, processing.samples_key))]
+    made = local.digest(mine)
+    if central.verify(theirs, made.size_bytes, made.sha256):
+        return []
+    with local.open_input(mine) as source:
+        return [central.put_bytes(source.read(), theirs)]
 
 
 def _send_run_file(run: Run, central: Store) -> StoredObject:

@@ -27,8 +27,10 @@
    nothing is stored. One that measured no span (too little track covered) is stored and
    the command warns.
 5. **Store** in one transaction: the line, track and masts, the vehicle and rig calibration
-   (versioned), the run and its span measurements. The samples file gets the run's name
-   (``run-{id}-{token}.parquet``) inside that transaction, as a second name beside the
+   (versioned), the run and its span measurements. The samples file, and its envelope file
+   beside it (:mod:`catenary.measurement.envelope`, built before the transaction), are put in
+   the store inside that transaction; the samples file gets the run's name
+   (``run-{id}-{token}.parquet``) there, as a second name beside the
    hidden one that names this process, which goes once the run is committed; a failure
    anywhere leaves neither a row nor a file behind, and a process killed between the two
    names leaves a pair the next ``process`` resolves by asking the database whether the run
@@ -87,6 +89,7 @@ from catenary.domain import (
 from catenary.errors import UserError
 from catenary.measurement.chain import MeasurementChain, TrackSamples
 from catenary.measurement.chainage import ChainageAlignment, TurningPointFinder, align_to_register
+from catenary.measurement.envelope import envelope_bytes
 from catenary.measurement.evidence import (
     HALF_LENGTH_M,
     POINTS,
@@ -108,7 +111,14 @@ from catenary.positions import wire_positions
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Processing, SpanMeasurement, run_uuid
 from catenary.storage.runs import find_stored_run, settings_sha256, store_processing
-from catenary.storage.store import Store, StoreError, open_store, samples_key
+from catenary.storage.store import (
+    ENVELOPES_PREFIX,
+    Store,
+    StoreError,
+    envelope_key,
+    open_store,
+    samples_key,
+)
 from catenary.text import length_problem
 from catenary.wiretype import WireType
 
@@ -692,13 +702,12 @@ def remove_abandoned_scratch(
     process (written before the names carried one) is removed once ``LEGACY_SCRATCH_AGE_S``
     old.
 
-    A process killed while it stored its run may have put the samples file and image
-    evidence in the store (under its processing's UUID, which its hidden files' token begins
-    with) without committing the processing. With ``engine`` and ``store``, for a hidden
-    samples file of the database (the token ends with its ``database_fingerprint``) whose
-    processing is not in the database, those objects are removed from the store; another
-    database's hidden samples file is left for its own next process, and so is every one
-    without ``engine`` and ``store``.
+    A process killed while it stored its run may have put the samples file, its envelope file and
+    image evidence in the store (under its processing's UUID, which its hidden files' token begins
+    with) without committing the processing. With ``engine`` and ``store``, for a hidden samples
+    file of the database (the token ends with its ``database_fingerprint``) whose processing is not
+    in the database, those objects are removed from the store; another database's hidden samples
+    file is left for its own next process, and so is every one without ``engine`` and ``store``.
     """
     host, now_s = socket.gethostname(), time.time() if now_s is None else now_s
     database = "" if engine is None else database_fingerprint(engine)
@@ -721,7 +730,12 @@ def remove_abandoned_scratch(
                 continue  # for its own database's next process to tell if it was committed
             made = str(uuid.UUID(token[:32]))
             if not _committed(engine, made):
-                stray = [k for k in store.keys(SAMPLES_DIR) if k.endswith(f"/{made}.parquet")]
+                stray = [
+                    k
+                    for prefix in (SAMPLES_DIR, ENVELOPES_PREFIX)
+                    for k in store.keys(prefix)
+                    if k.endswith(f"/{made}.parquet")
+                ]
                 stray += store.keys(evidence_prefix(made))
                 for key in stray:
                     store.delete(key)
@@ -897,6 +911,7 @@ def _process_open_run(
                 store,
                 str(made),
             )
+            levels = envelope_bytes(partial)
             header = inputs.header
             try:
                 with _interruptions_held():
@@ -955,6 +970,7 @@ def _process_open_run(
                         processing.samples_key = written.key
                         processing.samples_size_bytes = written.size_bytes
                         processing.samples_sha256 = written.sha256
+                        store.put_bytes(levels, envelope_key(key))
                         session.flush()
                         stored_ids = run.id, run.uuid, processing.uuid
                     kept, placed = placed, None  # the stored run's: never removed from here on
@@ -976,6 +992,8 @@ def _process_open_run(
                 if kept is None:
                     for key in store.keys(evidence_prefix(str(made))):
                         store.delete(key)
+                if placed is not None:  # last: the folder it would be in may be the fault
+                    store.delete(envelope_key(placed))
             if isinstance(exc, _StoredMeanwhile):
                 return ProcessResult(
                     run_id=exc.run_id,

@@ -224,19 +224,40 @@ def _columns(
 
 
 def read_sample_batches(
-    path: SamplesSource, columns: list[str] | None = None
+    path: SamplesSource,
+    columns: list[str] | None = None,
+    *,
+    within_m: tuple[float, float] | None = None,
 ) -> Iterator[dict[str, np.ndarray[Any, Any]]]:
     """The samples of a file (``columns``, default all, with those of ``ADDED_COLUMNS`` an
-    older file lacks filled in), row group by row group, as NumPy columns."""
+    older file lacks filled in), row group by row group, as NumPy columns.
+
+    With ``within_m = (from_m, to_m)``, only the row groups whose chainage statistics meet
+    that window are read (rows are written in scan order, so a window reads the few groups
+    that cover it); their rows are not filtered.
+    """
     handle = _open(path)
     wanted = columns if columns is not None else [*handle.schema_arrow.names, *ADDED_COLUMNS]
     held, added = _columns(path, handle, list(dict.fromkeys(wanted)))
     for group in range(handle.num_row_groups):
+        if within_m is not None and not _meets(handle, group, *within_m):
+            continue
         table = handle.read_row_group(group, columns=held)
         batch = {name: table.column(name).to_numpy() for name in held}
         for name in added:
             batch[name] = np.full(table.num_rows, ADDED_COLUMNS[name])
         yield batch
+
+
+def _meets(handle: pq.ParquetFile, group: int, from_m: float, to_m: float) -> bool:
+    """Whether row group ``group`` may hold a chainage in ``[from_m, to_m]`` (by its column
+    statistics; a group without them may)."""
+    meta = handle.metadata.row_group(group)
+    column = handle.schema_arrow.get_field_index("chainage_m")
+    stats = meta.column(column).statistics if column >= 0 else None
+    if stats is None or not stats.has_min_max:
+        return True
+    return bool(stats.min <= to_m and stats.max >= from_m)
 
 
 def trusted(batch: Mapping[str, np.ndarray[Any, Any]]) -> BoolArray:

@@ -36,6 +36,9 @@ from catenary.errors import UserError
 
 #: The first part of the keys of samples files.
 SAMPLES_PREFIX = "samples"
+#: The first part of the keys of envelope files (``envelope_key``): apart from the samples,
+#: so that the fleet's samples dataset never reads them.
+ENVELOPES_PREFIX = "envelopes"
 #: Bytes read or written at a time: memory stays flat whatever the file's size.
 CHUNK_BYTES = 8 * 1024 * 1024
 #: S3: how long connecting may take, in seconds (a refused connection fails at once).
@@ -93,6 +96,14 @@ def samples_key(line: str, track: str, run: str, name: str) -> str:
         raise ValueError(f"samples file name {name!r} or run {run!r} holds '/'")
     parts = (f"line={quote(line, safe='')}", f"track={quote(track, safe='')}", f"run={run}")
     return check_key(f"{SAMPLES_PREFIX}/{'/'.join(parts)}/{name}.parquet")
+
+
+def envelope_key(samples: str) -> str:
+    """The key of the envelope file of the samples file at key ``samples``: the same key under
+    ``ENVELOPES_PREFIX`` instead of ``SAMPLES_PREFIX`` (``envelopes/line=LINE/track=TRACK/
+    run=RUN/NAME.parquet``); ``ValueError`` if ``samples`` is not a store key."""
+    rest = check_key(samples).removeprefix(f"{SAMPLES_PREFIX}/")
+    return check_key(f"{ENVELOPES_PREFIX}/{rest}")
 
 
 PARTITION_COLUMNS = ("line", "track", "run")
