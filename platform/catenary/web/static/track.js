@@ -40,11 +40,12 @@
   let timer = null;
   let controller = null;
 
-  function chainage(m) {
+  /* A chainage as kilometres + metres (12+345.6; whole metres with digits = 0). */
+  function chainage(m, digits = 1) {
     const sign = m < 0 ? "-" : "";
     const km = Math.floor(Math.abs(m) / 1000);
-    const rest = (Math.abs(m) - km * 1000).toFixed(1).padStart(5, "0");
-    return `${sign}${km}+${rest}`;
+    const rest = (Math.abs(m) - km * 1000).toFixed(digits);
+    return `${sign}${km}+${rest.padStart(digits ? 4 + digits : 3, "0")}`;
   }
 
   function setStatus(text, failed) {
@@ -87,25 +88,25 @@
 
   async function load() {
     if (controller) controller.abort();
-    controller = new AbortController();
+    const mine = (controller = new AbortController());
     const params = new URLSearchParams({
       line: config.line, track: config.track, columns: String(plotColumns()),
     });
     if (view.from != null) params.set("from_m", String(view.from));
     if (view.to != null) params.set("to_m", String(view.to));
     setStatus("Loading…");
-    let answer;
+    let answer, body;
     try {
       answer = await fetch(`${config.profile_url}?${params}`, {
-        credentials: "same-origin", signal: controller.signal,
-        headers: { Accept: "application/json" },
+        credentials: "same-origin", signal: mine.signal, headers: { Accept: "application/json" },
       });
+      body = await answer.json().catch(() => ({ error: `answer ${answer.status}` }));
     } catch (error) {
-      if (error.name !== "AbortError") setStatus(`Cannot reach the service: ${error.message}`, true);
+      if (!mine.signal.aborted) setStatus(`Cannot reach the service: ${error.message}`, true);
       return;
     }
-    const body = await answer.json().catch(() => ({ error: `answer ${answer.status}` }));
-    if (!answer.ok) {
+    if (mine.signal.aborted) return; // a newer window is on its way
+    if (!answer.ok || body.error) {
       setStatus(body.error || `answer ${answer.status}`, true);
       return;
     }
@@ -283,7 +284,8 @@
     const tables = [];
     const series = [{ label: "chainage [m]" }];
     const bands = [];
-    [["latest", profile.latest], ["previous", profile.previous]].forEach(([name, run]) => {
+    // the previous run first: the latest is drawn over it
+    [["previous", profile.previous], ["latest", profile.latest]].forEach(([name, run]) => {
       if (!run) return;
       run.wires.forEach((wire) => {
         const rgb = WIRE_COLOURS[wire.wire_position % WIRE_COLOURS.length];
@@ -313,7 +315,11 @@
         y: { range: (u, min, max) => yRange(panel, min, max) },
       },
       axes: [
-        { values: (u, splits) => splits.map((v) => (last ? chainage(v) : "")), size: last ? 40 : 12 },
+        {
+          space: 90,
+          size: last ? 40 : 12,
+          values: (u, splits) => splits.map((v) => (last ? chainage(v, view.to - view.from > 2000 ? 0 : 1) : "")),
+        },
         { size: 64 },
       ],
       cursor: {
