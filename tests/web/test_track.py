@@ -31,6 +31,7 @@ MAST_EVERY_M = 500.0
 OVERLAP_M = (5_000.0, 5_500.0)  # span 10: a second contact wire (an overlap)
 HOT_SPOT_M = 42_123.0  # the latest run's thinnest sample
 HOT_SPOT_MM = 8.5
+FITTING_M = (30_000.0, 30_010.0)  # no wear width measured: no residual thickness
 THICKNESS_MM = 11.0
 
 
@@ -58,6 +59,7 @@ def samples(position_of: dict[int, int], seed: int, hot_spot: bool) -> dict[str,
     all_chainage, wire, position = all_chainage[order], wire[order], position[order]
     rows = all_chainage.shape[0]
     thickness = THICKNESS_MM + rng.uniform(-0.2, 0.2, rows)
+    thickness[(all_chainage >= FITTING_M[0]) & (all_chainage < FITTING_M[1])] = np.nan
     if hot_spot:
         thickness[np.flatnonzero(np.isclose(all_chainage, HOT_SPOT_M + 0.25))[0]] = HOT_SPOT_MM
     return {
@@ -409,3 +411,16 @@ def test_positions_along_the_chainage_from_the_span_measurements() -> None:
     wire = np.array([3, 3, 3, 3, 3, 5, 4])
     found = positions_along(chainage_m, wire, span_start_m, span_wire, span_position)
     assert found.tolist() == [1, 1, 1, 0, 0, 0, -1]
+
+
+def test_no_value_is_null_and_the_rest_of_the_point_is_kept(web: Web, fleet: Fleet) -> None:
+    for from_m, to_m, columns in ((29_900.0, 30_100.0, 1000), (29_000.0, 31_000.0, 1000)):
+        body = profile(web, from_m=from_m, to_m=to_m, columns=columns)
+        latest = wire(body["latest"], 0)
+        chainage = np.array(latest["chainage_m"])
+        inside = (chainage >= FITTING_M[0]) & (chainage < FITTING_M[1])
+        assert inside.sum() == 10  # a sample or 1 m bin a metre
+        thickness = latest["min_residual_thickness_mm"]
+        assert all(thickness[i] is None for i in np.flatnonzero(inside))
+        assert all(thickness[i] is not None for i in np.flatnonzero(~inside))
+        assert None not in latest["height_min_mm"]
