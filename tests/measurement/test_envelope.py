@@ -220,6 +220,22 @@ def test_track_view_below_a_kilometre_reads_the_samples_of_the_window_only(
     assert len(list(read_sample_batches(source, ["chainage_m"], within_m=(7000.0, 7500.0)))) <= 2
 
 
+def test_track_view_reads_an_s3_store(s3_settings: Settings, tmp_path: Path) -> None:
+    columns = synthetic_samples(3000.0, 0.5)
+    store = open_store(s3_settings)
+    key = samples_key("demo line", "1", "run", "processing")
+    store.put_file(write_samples(tmp_path / "samples.parquet", columns), key)
+    binned = track_view(store, key, 0.0, 3000.0, 300)
+    raw = track_view(store, key, 1000.0, 1200.0, 300)
+    assert store.keys("envelopes") == [envelope_key(key)]
+    assert binned.level_m == 10.0 and binned.wires[1].chainage_m.shape == (300,)
+    expected = brute_force(columns, 10.0)
+    assert binned.wires[1].low["height_mm"][17] == expected[(1, 17)][3]
+    in_window = (columns["chainage_m"] >= 1000.0) & (columns["chainage_m"] <= 1200.0)
+    good = in_window & ~columns["vehicle_fault"] & ~columns["selection_uncertain"]
+    assert raw.raw and sum(w.chainage_m.shape[0] for w in raw.wires.values()) == good.sum()
+
+
 def test_a_window_the_view_cannot_draw_is_one_clear_error(tmp_path: Path) -> None:
     store, key = stored_samples(tmp_path, synthetic_samples(100.0, 0.5))
     with pytest.raises(UserError, match=r"chainage window 5\.0 to 5\.0 m"):
@@ -228,6 +244,9 @@ def test_a_window_the_view_cannot_draw_is_one_clear_error(tmp_path: Path) -> Non
         track_view(store, key, 0.0, 5000.0, 0)
     with pytest.raises(UserError, match="quantity 'wear_width_mm'"):
         track_view(store, key, 0.0, 50.0, 100, quantities=["wear_width_mm"])
+    store.put_bytes(b"not Parquet", envelope_key(key))
+    with pytest.raises(UserError, match=r"envelopes/.*: not a readable envelope file"):
+        track_view(store, key, 0.0, 5000.0, 100)
 
 
 def test_process_stores_the_envelope_file_beside_the_samples(

@@ -37,7 +37,7 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 
 from catenary.arrays import FloatArray, IntArray
-from catenary.errors import UserError
+from catenary.errors import FormatError, UserError
 from catenary.measurement.samples import (
     TRUST_COLUMNS,
     SamplesSource,
@@ -472,6 +472,8 @@ def track_view(
         table = ds.dataset(key, filesystem=store.filesystem, format="parquet").to_table(
             columns=names, filter=window
         )
+    except pa.ArrowInvalid as exc:
+        raise FormatError(store.describe(key), f"not a readable envelope file ({exc})") from None
     except OSError as exc:
         raise StoreError(
             f"{store.describe(key)}: cannot read: {' '.join(str(exc).split())}"
