@@ -190,12 +190,13 @@ def wire(run: dict[str, Any], position: int) -> dict[str, Any]:
 
 
 @pytest.mark.parametrize(
-    ("from_m", "to_m", "columns", "level_m", "resolution"),
+    ("from_m", "to_m", "columns", "level_m", "bin_m", "resolution"),
     [
-        (0.0, LENGTH_M, 1000, 100.0, "100 m"),
-        (40_000.0, 50_000.0, 1000, 10.0, "10 m"),
-        (41_000.0, 43_000.0, 1200, 1.0, "1 m"),
-        (42_000.0, 42_500.0, 1200, None, "raw"),
+        (0.0, LENGTH_M, 1000, 100.0, 100.0, "100 m"),
+        (0.0, LENGTH_M, 1200, 10.0, 80.0, "10 m"),  # 83 m a column: 8 bins of 10 m as one
+        (40_000.0, 50_000.0, 1000, 10.0, 10.0, "10 m"),
+        (41_000.0, 43_000.0, 1200, 1.0, 1.0, "1 m"),
+        (42_000.0, 42_500.0, 1200, None, None, "raw"),
     ],
 )
 def test_the_coarsest_level_that_fills_the_screen_and_raw_samples_below_a_kilometre(
@@ -205,15 +206,16 @@ def test_the_coarsest_level_that_fills_the_screen_and_raw_samples_below_a_kilome
     to_m: float,
     columns: int,
     level_m: float | None,
+    bin_m: float | None,
     resolution: str,
 ) -> None:
     body = profile(web, from_m=from_m, to_m=to_m, columns=columns)
-    assert (body["level_m"], body["resolution"]) == (level_m, resolution)
+    assert (body["level_m"], body["bin_m"], body["resolution"]) == (level_m, bin_m, resolution)
     assert (body["from_m"], body["to_m"], body["columns"]) == (from_m, to_m, columns)
     latest = wire(body["latest"], 0)
     chainage = np.array(latest["chainage_m"])
     # every bin of the window, in order, and nothing outside it
-    step = STEP_M if level_m is None else level_m
+    step = STEP_M if bin_m is None else bin_m
     assert chainage.shape[0] == pytest.approx((to_m - from_m) / step, abs=1.0)
     assert np.all(np.diff(chainage) > 0)
     assert chainage[0] >= from_m - step and chainage[-1] <= to_m
@@ -236,8 +238,9 @@ def test_the_previous_run_beside_the_latest_per_wire_position(web: Web, fleet: F
         assert [w["wire_position"] for w in run["wires"]] == [0, 1]
         # position 1 is the overlap's second wire, whatever the run numbers it: 100 mm higher
         overlap = wire(run, 1)
-        assert min(overlap["chainage_m"]) >= OVERLAP_M[0] - 1.0
-        assert max(overlap["chainage_m"]) < OVERLAP_M[1] + 1.0
+        assert body["bin_m"] == 3.0  # 3 m a column: 3 bins of 1 m as one
+        assert min(overlap["chainage_m"]) >= OVERLAP_M[0] - 3.0
+        assert max(overlap["chainage_m"]) < OVERLAP_M[1]
         assert min(overlap["height_min_mm"]) >= 5395.0 - 0.001
         assert max(wire(run, 0)["height_max_mm"]) <= 5305.0 + 0.001
     # the earlier run has no hot spot
@@ -414,7 +417,7 @@ def test_positions_along_the_chainage_from_the_span_measurements() -> None:
 
 
 def test_no_value_is_null_and_the_rest_of_the_point_is_kept(web: Web, fleet: Fleet) -> None:
-    for from_m, to_m, columns in ((29_900.0, 30_100.0, 1000), (29_000.0, 31_000.0, 1000)):
+    for from_m, to_m, columns in ((29_900.0, 30_100.0, 1000), (29_000.0, 31_000.0, 2000)):
         body = profile(web, from_m=from_m, to_m=to_m, columns=columns)
         latest = wire(body["latest"], 0)
         chainage = np.array(latest["chainage_m"])

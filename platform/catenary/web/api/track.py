@@ -62,7 +62,7 @@ Numbers = list[float | None]
 
 class WireProfileOut(BaseModel):
     """One wire position of a run along the window, by increasing chainage: per point the
-    bin's start (``chainage_m``; the bin covers ``[chainage_m, chainage_m + level_m)``) and
+    bin's start (``chainage_m``; the bin covers ``[chainage_m, chainage_m + bin_m)``) and
     the minimum and maximum of each quantity in it; raw samples: each sample's chainage and
     values in the ``min`` arrays, the ``max`` arrays null."""
 
@@ -154,7 +154,8 @@ class AlertsOut(BaseModel):
 
 class TrackProfileOut(BaseModel):
     """A track along window ``[from_m, to_m]`` drawn on ``columns`` pixel columns, read at
-    envelope level ``level_m`` (null: the raw samples; ``resolution`` says which as text);
+    envelope level ``level_m`` (null: the raw samples; ``resolution`` says which as text),
+    its bins gathered ``bin_m`` wide (a whole number of them, about a pixel column or less);
     ``extent_m``, the chainage the track's masts and latest run cover (null: nothing)."""
 
     line: str
@@ -163,6 +164,7 @@ class TrackProfileOut(BaseModel):
     to_m: float
     columns: int
     level_m: float | None
+    bin_m: float | None
     resolution: str
     extent_m: list[float] | None
     latest: RunProfileOut | None
@@ -239,11 +241,12 @@ def _numbers(values: FloatArray) -> Numbers:
     return [None if v != v else v for v in rounded.tolist()]
 
 
-def _by_position(view: TrackView, spans: FloatArray) -> list[WireProfileOut]:
+def _by_position(view: TrackView, spans: FloatArray, factor: int) -> list[WireProfileOut]:
     """The view's traces (per wire of the run) per wire position: ``spans``, shape (m, 3),
     gives each span measurement's wire, wire position and start chainage [m]. A bin is
-    placed by its centre; two wires' bins of one position and chainage are gathered into one;
-    points of a wire without a span measurement are left out."""
+    placed by its centre; two wires' bins of one position and chainage are gathered into one,
+    and ``factor`` bins into one; points of a wire without a span measurement are left
+    out."""
     traces = list(view.wires.items())
     if not traces:
         return []
@@ -278,7 +281,8 @@ def _by_position(view: TrackView, spans: FloatArray) -> list[WireProfileOut]:
                 {q: v[known] for q, v in low.items()},
                 {q: v[known] for q, v in high.items()},
             )
-        ]
+        ],
+        factor,
     )
     return _wires(bins.wire, bins.chainage_m, bins.low, bins.high)
 
@@ -311,7 +315,7 @@ def _wires(
 def _run_profile(
     session: Session, store: Store, run: Run, from_m: float, to_m: float, columns: int
 ) -> RunProfileOut:
-    """``run`` along the window."""
+    """``run`` along the window, its bins gathered as ``gathered`` says."""
     processing = run.processing
     wires: list[WireProfileOut] = []
     problem = None
@@ -330,7 +334,11 @@ def _run_profile(
                     SpanMeasurement.start_chainage_m,
                 ).where(SpanMeasurement.processing_id == processing.id)
             ).all()
-            wires = _by_position(view, np.array(spans, dtype=np.float64).reshape(-1, 3))
+            wires = _by_position(
+                view,
+                np.array(spans, dtype=np.float64).reshape(-1, 3),
+                gathered(view.level_m, from_m, to_m, columns),
+            )
     return RunProfileOut(
         id=run.id,
         uuid=run.uuid,
@@ -434,6 +442,14 @@ def _limits(web: WebState, wire_types: set[str]) -> LimitsOut:
     )
 
 
+def gathered(level_m: float | None, from_m: float, to_m: float, columns: int) -> int:
+    """How many bins of level ``level_m`` are sent as one: as many as a pixel column of window
+    ``[from_m, to_m]`` holds (the picture is the same, the answer smaller), at least one."""
+    if level_m is None:
+        return 1
+    return max(1, math.floor((to_m - from_m) / columns / level_m))
+
+
 def resolution(level_m: float | None) -> str:
     """A level as people read it: ``raw`` or its bin width (``10 m``)."""
     return "raw" if level_m is None else f"{level_m:g} m"
@@ -481,6 +497,7 @@ def track_profile(
             for each in (shown, previous)
         ]
         level_m = choose_level(start, end, columns)
+        factor = gathered(level_m, start, end, columns)
         masts = _masts(session, found, start, end)
         wire_types = {m.wire_type for m in masts}
         if shown is not None and shown.processing is not None and shown.processing.wire_type:
@@ -492,6 +509,7 @@ def track_profile(
             to_m=end,
             columns=columns,
             level_m=level_m,
+            bin_m=None if level_m is None else level_m * factor,
             resolution=resolution(level_m),
             extent_m=list(extent) if extent else None,
             latest=profiles[0],

@@ -114,8 +114,8 @@
     extent = body.extent_m;
     view = { from: body.from_m, to: body.to_m };
     keepInAddress();
-    resolutionText.textContent = body.level_m == null
-      ? "raw samples" : `${body.resolution} bins (minimum and maximum)`;
+    resolutionText.textContent = body.level_m == null ? "raw samples"
+      : `${body.resolution} envelope level, minimum and maximum per ${body.bin_m} m`;
     const problems = [body.latest, body.previous].filter((r) => r && r.problem).map((r) => r.problem);
     const runs = body.latest ? "" : "no run of this track yet";
     setStatus(problems.length ? problems.join("; ") : runs, problems.length > 0);
@@ -280,7 +280,7 @@
   }
 
   function chartOf(panel, index, width) {
-    const level = profile.level_m;
+    const level = profile.bin_m;
     const tables = [];
     const series = [{ label: "chainage [m]" }];
     const bands = [];
