@@ -381,6 +381,8 @@ class SpanMeasurement(Base):
             onupdate="CASCADE",
         ),
         Index(None, "track_id", "start_chainage_m"),
+        # the thinnest spans of a processing (the overview's worst spans)
+        Index(None, "processing_id", "min_residual_thickness_mm"),
         CheckConstraint("wire >= 0", name="wire_not_negative"),
         CheckConstraint("wire_position >= 0", name="wire_position_not_negative"),
         CheckConstraint("samples >= 0", name="samples_not_negative"),
