@@ -3,7 +3,7 @@ latest run, and the thinnest spans of those runs.
 
 A track's latest run is its complete run that started last (as the maintenance report
 reads it); its spans are those of that run's latest processing. Nothing here reads every
-span into Python: counts and the thinnest spans are found by the database
+span into Python: mast counts and the thinnest spans are found by the database
 (``span_measurements``' index on ``processing_id, min_residual_thickness_mm``).
 """
 
@@ -39,14 +39,17 @@ def latest_runs() -> Select[Any]:
 
 @dataclass(frozen=True)
 class TrackSummary:
-    """A track of the register: its masts, its latest complete run (None: none yet) and how
-    many span-wires that run measured."""
+    """A track of the register: its masts and spans (between consecutive masts) and its
+    latest complete run (None: none yet)."""
 
     line: str
     track: str
     masts: int
     latest: Run | None
-    span_wires: int
+
+    @property
+    def spans(self) -> int:
+        return max(self.masts - 1, 0)
 
 
 def track_summaries(session: Session) -> list[TrackSummary]:
@@ -68,18 +71,9 @@ def track_summaries(session: Session) -> list[TrackSummary]:
             .options(contains_eager(Run.vehicle))
         )
     }
-    spans: dict[int, int] = {
-        track_id: n
-        for track_id, n in session.execute(
-            select(latest.c.track_id, func.count())
-            .select_from(latest)
-            .join(SpanMeasurement, SpanMeasurement.processing_id == latest.c.processing_id)
-            .group_by(latest.c.track_id)
-        )
-    }
     return sorted(
         (
-            TrackSummary(line, track, masts.get(id_, 0), runs.get(id_), spans.get(id_, 0))
+            TrackSummary(line, track, masts.get(id_, 0), runs.get(id_))
             for id_, line, track in tracks
         ),
         key=lambda t: (t.line, t.track),
