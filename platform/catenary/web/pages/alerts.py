@@ -132,7 +132,8 @@ def _back(form: FormData, **done: object) -> RedirectResponse:
 
 
 def _performed_at(text: str, now: datetime) -> datetime:
-    """A form's date (``YYYY-MM-DD``) or time (``YYYY-MM-DDTHH:MM``), UTC, not in the future."""
+    """A form's date (``YYYY-MM-DD``: noon that day) or time (``YYYY-MM-DDTHH:MM``), UTC, not
+    in the future."""
     try:
         moment = (
             datetime.fromisoformat(text)
