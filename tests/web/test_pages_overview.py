@@ -9,6 +9,7 @@ from datetime import UTC, datetime, timedelta
 from sqlalchemy import Engine
 
 from catenary.storage.database import session_scope
+from catenary.storage.overview import track_summaries, worst_spans
 from tests.maintenance.conftest import T0, YEAR, Fleet
 from tests.web.conftest import Web
 
@@ -121,3 +122,19 @@ def test_the_overview_escapes_what_the_database_holds(web: Web, engine: Engine) 
 def test_an_empty_fleet_says_so(web: Web) -> None:
     html = web.client("vera").get("/").text
     assert "No track in the database yet" in html and "No measured span yet" in html
+
+
+def test_the_worst_spans_are_the_thinnest_of_the_latest_runs_across_tracks(engine: Engine) -> None:
+    """Each latest processing's thinnest rows are merged (on PostgreSQL a lateral join gives
+    ``limit`` per processing): the three thinnest come from both tracks."""
+    _fleet(engine)
+    with session_scope(engine, read_only=True) as session:
+        worst = worst_spans(session, 3)
+        assert [(line, track, s.mast_from) for line, track, s in worst] == [
+            ("L1", "1", "M03"),
+            ("L1", "1", "M07"),
+            ("<script>alert(1)</script>", "2", "M01"),
+        ]
+        assert [s.min_residual_thickness_mm for _, _, s in worst] == [8.25, 8.5, 11.0]
+        summaries = {(t.line, t.track): (t.masts, t.spans) for t in track_summaries(session)}
+        assert summaries == {("L1", "1"): (11, 10), ("<script>alert(1)</script>", "2"): (5, 4)}
