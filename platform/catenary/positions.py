@@ -14,7 +14,7 @@ import numpy as np
 
 from catenary.arrays import FloatArray, IntArray
 
-__all__ = ["wire_positions"]
+__all__ = ["positions_along", "wire_positions"]
 
 
 def wire_positions(
@@ -30,4 +30,40 @@ def wire_positions(
     first = np.maximum.accumulate(np.where(new, index, 0))
     position = np.empty(order.shape[0], dtype=np.int64)
     position[order] = index - first
+    return position
+
+
+def positions_along(
+    chainage_m: FloatArray,
+    wire: IntArray,
+    span_start_m: FloatArray,
+    span_wire: IntArray,
+    span_position: IntArray,
+) -> IntArray:
+    """The wire position of points of a run along the chainage (e.g. envelope bins: their
+    centres), from the run's span measurements: that of the point's wire in the last span of
+    that wire starting at or before the point (its first span, for a point before them all).
+
+    Parameters
+    ----------
+    chainage_m, wire : ndarray, shape (n,)
+        The points' chainage [m] and the run's wire number.
+    span_start_m, span_wire, span_position : ndarray, shape (m,)
+        Each span measurement's start chainage [m], wire number and wire position.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        The position; -1 for a wire without a span measurement.
+    """
+    position = np.full(chainage_m.shape[0], -1, dtype=np.int64)
+    for number in np.unique(wire):
+        mine = span_wire == number
+        if not mine.any():
+            continue
+        order = np.argsort(span_start_m[mine], kind="stable")
+        starts, ranks = span_start_m[mine][order], span_position[mine][order]
+        points = wire == number
+        found = np.searchsorted(starts, chainage_m[points], side="right") - 1
+        position[points] = ranks[np.clip(found, 0, starts.shape[0] - 1)]
     return position
