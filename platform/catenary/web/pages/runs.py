@@ -12,14 +12,13 @@ from urllib.parse import urlencode
 from fastapi import APIRouter, Query, Request
 from fastapi.responses import HTMLResponse
 from sqlalchemy import distinct, func, select
-from sqlalchemy.orm import Session
 from starlette.responses import Response
 
-from catenary.errors import UserError
 from catenary.maintenance.reports import report_request
 from catenary.storage.database import session_scope
-from catenary.storage.models import Run, SpanMeasurement
-from catenary.storage.runs import alignment_summary, find_run, list_runs
+from catenary.storage.models import SpanMeasurement
+from catenary.storage.runs import alignment_summary, list_runs
+from catenary.web.api.runs import run_of
 from catenary.web.app import state
 from catenary.web.auth import Principal, page_user, requires
 from catenary.web.errors import NotFound
@@ -68,20 +67,12 @@ def runs(
         return render(request, "runs.html", context)
 
 
-def _run(session: Session, reference: str) -> Run:
-    """The run ``reference`` names (``find_run``); 404 with its message if none."""
-    try:
-        return find_run(session, reference)
-    except UserError as exc:
-        raise NotFound(str(exc)) from None
-
-
 @router.get("/runs/{reference}")
 def run(
     request: Request, reference: str, user: Annotated[Principal, requires("viewer", page_user)]
 ) -> Response:
     with session_scope(state(request).engine, read_only=True) as session:
-        found = _run(session, reference)
+        found = run_of(session, reference)
         spans, span_wires = session.execute(
             select(func.count(distinct(SpanMeasurement.span)), func.count()).where(
                 SpanMeasurement.processing_id == found.processing_id
@@ -112,7 +103,7 @@ def run_report(
     if reporter is None:
         raise NotFound(f"no {RUN_REPORTER!r} reporter is registered (catenary plugins says why)")
     with session_scope(shared.engine, read_only=True) as session:
-        run_id = _run(session, reference).id
+        run_id = run_of(session, reference).id
     report = report_request(shared.settings, shared.registry, runs=(str(run_id),))
     with tempfile.TemporaryDirectory(prefix="catenary-report-") as folder:
         output = Path(folder) / f"run-{run_id}.html"
