@@ -427,15 +427,3 @@ def test_no_value_is_null_and_the_rest_of_the_point_is_kept(web: Web, fleet: Fle
         assert all(thickness[i] is None for i in np.flatnonzero(inside))
         assert all(thickness[i] is not None for i in np.flatnonzero(~inside))
         assert None not in latest["height_min_mm"]
-
-
-def test_a_line_breaks_where_nothing_was_measured() -> None:
-    from catenary.web.api.track import with_gaps
-
-    chainage = np.array([0.0, 0.05, 0.10, 5.0, 5.05, 20.0])
-    values = {"x": np.array([1.0, 2.0, 3.0, 4.0, 5.0, 6.0])}
-    broken_m, broken = with_gaps(chainage, values, 1.0)
-    np.testing.assert_array_equal(broken_m, [0.0, 0.05, 0.10, 2.55, 5.0, 5.05, 12.525, 20.0])
-    np.testing.assert_array_equal(np.isnan(broken["x"]), [0, 0, 0, 1, 0, 0, 1, 0])
-    unbroken_m, _ = with_gaps(chainage[:3], {"x": values["x"][:3]}, 1.0)
-    np.testing.assert_array_equal(unbroken_m, chainage[:3])

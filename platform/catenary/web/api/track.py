@@ -49,8 +49,6 @@ ACTIVE = ("open", "acknowledged")
 """The alerts the track view shows."""
 DECIMALS = 3
 """Numbers are sent to 0.001 mm and 0.001 m (what they mean: FORMATS.md)."""
-RAW_GAP_M = 1.0
-"""A step between raw samples longer than this [m] is a gap (samples lie centimetres apart)."""
 FIELDS = {
     "residual_thickness_mm": ("min_residual_thickness_mm", "max_residual_thickness_mm"),
     "height_mm": ("height_min_mm", "height_max_mm"),
@@ -261,7 +259,6 @@ def _by_position(view: TrackView, spans: FloatArray, factor: int) -> list[WirePr
             chainage[known][order],
             {q: v[known][order] for q, v in low.items()},
             None,
-            RAW_GAP_M,
         )
     bins = merge_bins(
         [
@@ -276,20 +273,7 @@ def _by_position(view: TrackView, spans: FloatArray, factor: int) -> list[WirePr
         ],
         factor,
     )
-    return _wires(bins.wire, bins.chainage_m, bins.low, bins.high, 1.5 * view.level_m * factor)
-
-
-def with_gaps(
-    chainage_m: FloatArray, columns: Mapping[str, FloatArray], gap_m: float
-) -> tuple[FloatArray, dict[str, FloatArray]]:
-    """Sorted ``chainage_m`` ``(n,)`` and its ``columns`` with a NaN row inserted halfway
-    across each step longer than ``gap_m`` [m], so that a line drawn through them breaks
-    where nothing was measured instead of bridging the gap."""
-    steps = np.flatnonzero(np.diff(chainage_m) > gap_m) + 1
-    middle = (chainage_m[steps - 1] + chainage_m[steps]) / 2.0
-    return np.insert(chainage_m, steps, middle), {
-        name: np.insert(values, steps, np.nan) for name, values in columns.items()
-    }
+    return _wires(bins.wire, bins.chainage_m, bins.low, bins.high)
 
 
 def _wires(
@@ -297,26 +281,20 @@ def _wires(
     chainage_m: FloatArray,
     low: Mapping[str, FloatArray],
     high: Mapping[str, FloatArray] | None,
-    gap_m: float,
 ) -> list[WireProfileOut]:
-    """Rows sorted by position then chainage, one ``WireProfileOut`` per position, broken
-    (``with_gaps``) at steps longer than ``gap_m`` [m]."""
+    """Rows sorted by position then chainage, one ``WireProfileOut`` per position."""
     numbers, first = np.unique(position, return_index=True)
     bounds = [*first.tolist(), position.shape[0]]
     found = []
     for number, begin, end in zip(numbers.tolist(), bounds[:-1], bounds[1:], strict=True):
-        columns = {f"low {q}": v[begin:end] for q, v in low.items()}
-        if high is not None:
-            columns |= {f"high {q}": v[begin:end] for q, v in high.items()}
-        chainage, broken = with_gaps(chainage_m[begin:end], columns, gap_m)
         values: dict[str, Numbers | None] = {}
         for quantity, (low_name, high_name) in FIELDS.items():
-            values[low_name] = _numbers(broken[f"low {quantity}"])
-            values[high_name] = None if high is None else _numbers(broken[f"high {quantity}"])
+            values[low_name] = _numbers(low[quantity][begin:end])
+            values[high_name] = None if high is None else _numbers(high[quantity][begin:end])
         found.append(
             WireProfileOut(
                 wire_position=int(number),
-                chainage_m=np.round(chainage, DECIMALS).tolist(),
+                chainage_m=np.round(chainage_m[begin:end], DECIMALS).tolist(),
                 **values,  # type: ignore[arg-type]
             )
         )
