@@ -42,6 +42,7 @@ from sqlalchemy.orm import Session, selectinload
 
 from catenary.errors import UserError
 from catenary.limits import LEVELS
+from catenary.maintenance.alerts.lifecycle import forecast_date
 from catenary.measurement.samples import export_table
 from catenary.plugins import ReportRequest
 from catenary.storage.database import open_database, session_scope
@@ -67,20 +68,6 @@ OPEN_STATUSES = ("open", "acknowledged")
 
 HOT_SPOT_ACTIONS = {"spliced": "splice", "reinforced": "reinforcement clamp"}
 """Maintenance action kinds that leave a hot spot on the wire, and what it is called."""
-
-
-def forecast_date(details: Mapping[str, Any] | None, key: str = "reach_at") -> date | None:
-    """The (UTC) date of an ISO time in a forecast alert's ``details[key]``: ``reach_at``, when
-    the limit is expected (``reach_earliest``, ``reach_latest``: its interval); None without
-    one."""
-    value = (details or {}).get(key)
-    if not isinstance(value, str):
-        return None
-    try:
-        moment = datetime.fromisoformat(value)
-    except ValueError:
-        return None
-    return (moment.astimezone(UTC) if moment.tzinfo else moment).date()
 
 
 @dataclass

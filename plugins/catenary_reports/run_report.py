@@ -51,7 +51,7 @@ from catenary.measurement.spans import SPAN_COLUMNS, SPAN_SCHEMA
 from catenary.plugins import PluginRegistry, ReportRequest
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Run, SpanMeasurement
-from catenary.storage.runs import find_run, latest_processing
+from catenary.storage.runs import alignment_summary, find_run, latest_processing
 from catenary.storage.store import Store, open_store
 from catenary_reports import html
 from catenary_reports.html import Cell, number
@@ -145,14 +145,9 @@ def _facts(run: Run, spans: Sequence[SpanMeasurement], extent: _Extent) -> list[
         if extent.samples
         else "no samples"
     )
-    if processing.chainage_aligned:
-        chainage += (
-            f"; aligned to the register through {processing.alignment_matched} registration points "
-            f"(residual RMS {processing.alignment_rms_m:.2f} m, encoder error "
-            f"{1.0 / (processing.encoder_scale or 1.0) - 1.0:+.3%})"
-        )
-    elif processing.chainage_aligned is not None:
-        chainage += "; start chainage + encoder distance (not aligned to a register)"
+    alignment = alignment_summary(processing)
+    if alignment:
+        chainage += f"; {alignment}"
     samples = f"{extent.rows} in {extent.path.name}"
     left_out = [
         f"{count} {what}"

@@ -164,3 +164,15 @@ def test_unknown_addresses_and_bad_parameters_are_one_clear_error(web: Web) -> N
     page = web.client("vera").get("/nothing-here")
     assert page.status_code == 404 and "no such address" in page.text
     assert "Traceback" not in page.text
+
+
+def test_every_answer_carries_the_security_headers(web: Web) -> None:
+    for answer in (
+        web.anonymous().get("/sign-in"),
+        web.anonymous().get("/api/v1/runs"),
+        web.client("vera").get("/"),
+        web.anonymous().get("/static/catenary.css"),
+    ):
+        policy = answer.headers["content-security-policy"]
+        assert "script-src 'self';" in policy and "frame-ancestors 'none'" in policy
+        assert answer.headers["x-content-type-options"] == "nosniff"

@@ -133,33 +133,6 @@ def evaluate_command(
         ctx.exit(1)
 
 
-def _where(alert: Alert) -> str:
-    if alert.mast_from is not None:
-        return f"masts {alert.mast_from} to {alert.mast_to}"
-    return f"{alert.start_chainage_m:.1f} to {alert.end_chainage_m:.1f} m"
-
-
-def _what(alert: Alert) -> str:
-    details = alert.details or {}
-    if alert.kind == "forecast":
-        low, high = details.get("reach_earliest"), details.get("reach_latest")
-        span = f"{(low or '-')[:10]} to {(high or 'never')[:10]}"
-        return (
-            f"reaches {alert.threshold:.2f} mm about {str(details.get('reach_at'))[:10]} "
-            f"({span}), wear {details.get('wear_rate_mm_per_year', 0.0):.3f} "
-            f"+- {details.get('wear_rate_se_mm_per_year', 0.0):.3f} mm/year"
-        )
-    if alert.kind == "geometry":
-        check = str(details.get("check", "geometry"))
-        unit = "per mille" if check == "height_gradient" else "mm"
-        text = f"{check} {alert.value:.1f} {unit}, limit {alert.threshold:.1f} {unit}"
-        if "design_mm" in details and "measured_mm" in details:
-            text += f" (at the mast {details['measured_mm']} mm, design {details['design_mm']} mm)"
-        return text
-    scope = "anchor section average" if details.get("anchor_section") else "minimum"
-    return f"{scope} {alert.value:.2f} mm, limit {alert.threshold:.2f} mm"
-
-
 def _alerts_geojson(session: Session, found: list[Alert]) -> tuple[dict[str, Any], int]:
     """The alerts as GeoJSON features over their stretch, and how many were left out for
     want of mast coordinates (none on any of their tracks: a ``UserError``)."""
@@ -220,7 +193,8 @@ def list_command(
     coordinates; alerts beyond the masts with coordinates are left out (said on standard
     error)."""
     from catenary.geojson import geojson_text, write_geojson
-    from catenary.maintenance.alerts.lifecycle import alert_json, list_alerts
+    from catenary.maintenance.alerts import alert_stretch, alert_summary, list_alerts
+    from catenary.maintenance.alerts.lifecycle import alert_json
     from catenary.storage.database import session_scope
     from catenary.storage.runs import pending_runs
 
@@ -249,9 +223,9 @@ def list_command(
                 click.echo(
                     printable(
                         f"{alert.id:>6}  {alert.level:<8} {alert.kind:<9} {alert.status:<12} "
-                        f"{alert.track.line.code}/{alert.track.code}  {_where(alert)}"
+                        f"{alert.track.line.code}/{alert.track.code}  {alert_stretch(alert)}"
                         f"{within}, wire position {alert.wire}: "
-                        f"{_what(alert)}; {(alert.details or {}).get('action', alert.rule)}"
+                        f"{alert_summary(alert)}; {(alert.details or {}).get('action', alert.rule)}"
                     )
                 )
     machine = output_format != "text"

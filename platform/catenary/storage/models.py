@@ -382,6 +382,8 @@ class SpanMeasurement(Base):
         ),
         Index(None, "track_id", "start_chainage_m"),
         Index(None, "track_id", "mast_from"),  # a span's history (``span_trends``)
+        # the thinnest spans of a processing (the overview's worst spans)
+        Index(None, "processing_id", "min_residual_thickness_mm"),
         CheckConstraint("wire >= 0", name="wire_not_negative"),
         CheckConstraint("wire_position >= 0", name="wire_position_not_negative"),
         CheckConstraint("samples >= 0", name="samples_not_negative"),

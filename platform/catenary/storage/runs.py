@@ -26,6 +26,7 @@ from catenary.storage.models import (
 from catenary.storage.rigs import register_rig_calibration
 
 __all__ = [
+    "alignment_summary",
     "find_mast",
     "find_run",
     "find_stored_run",
@@ -162,6 +163,21 @@ def latest_processing(run: Run) -> Processing:
     if run.processing is None:
         raise UserError(f"run {run.id} has no processing: process its run file again")
     return run.processing
+
+
+def alignment_summary(processing: Processing) -> str:
+    """How the processing found its chainage, in words: aligned to the register (through how
+    many registration points, the residual RMS [m], the encoder's error), or start chainage
+    plus encoder distance; empty for a processing stored before this was recorded."""
+    if processing.chainage_aligned:
+        return (
+            f"aligned to the register through {processing.alignment_matched} registration points "
+            f"(residual RMS {processing.alignment_rms_m or 0.0:.2f} m, encoder error "
+            f"{1.0 / (processing.encoder_scale or 1.0) - 1.0:+.3%})"
+        )
+    if processing.chainage_aligned is not None:
+        return "start chainage + encoder distance (not aligned to a register)"
+    return ""
 
 
 def find_stored_run(session: Session, source_sha256: str, rig_sha256: str) -> Run | None:

@@ -19,6 +19,7 @@ from catenary.storage.database import make_engine, require_exists, require_migra
 from catenary.storage.store import Store, open_store
 from catenary.web.auth import Sessions, SignInLimiter
 from catenary.web.errors import install_error_handlers
+from catenary.web.headers import SecurityHeaders
 from catenary.web.settings import WebSettings, web_settings
 
 __all__ = ["WebState", "create_app", "state"]
@@ -90,6 +91,7 @@ def create_app(settings: Settings, registry: PluginRegistry | None = None) -> Fa
         lifespan=lifespan,
     )
     app.state.web = shared
+    app.add_middleware(SecurityHeaders)
     install_error_handlers(app)
     app.mount("/static", StaticFiles(directory=Path(__file__).parent / "static"), name="static")
     app.include_router(api.router, prefix=API_PREFIX)

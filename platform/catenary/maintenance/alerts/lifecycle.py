@@ -3,12 +3,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from datetime import UTC, datetime
+from collections.abc import Mapping, Sequence
+from datetime import UTC, date, datetime
 from typing import TYPE_CHECKING, Any
 
 from sqlalchemy import (
     case,
+    func,
     select,
 )
 from sqlalchemy.engine import Engine
@@ -34,8 +35,13 @@ if TYPE_CHECKING:
 __all__ = [
     "ACTIVE",
     "acknowledge_alert",
+    "alert_counts",
     "alert_json",
+    "alert_stretch",
+    "alert_summary",
     "announce_alerts",
+    "due_forecasts",
+    "forecast_date",
     "iso_utc",
     "list_alerts",
     "new_alerts_since",
@@ -61,11 +67,12 @@ def list_alerts(
     limit: int | None = None,
     offset: int = 0,
 ) -> list[Alert]:
-    """Alerts as a planner reads them: most severe level first, then line, track, chainage;
-    those overlapping ``from_m`` to ``to_m`` [m] if given; ``limit`` of them (all: None) from
-    ``offset`` on.
+    """Alerts as a planner reads them: most severe level first, then line, track, chainage.
 
-    ``status``: one of ``ALERT_STATUSES``, ``active`` (open and acknowledged) or ``all``.
+    ``status``: one of ``ALERT_STATUSES``, ``active`` (open and acknowledged) or ``all``; of
+    line ``line`` (and its track ``track``), of ``levels`` and ``kinds`` when given, those
+    overlapping ``from_m`` to ``to_m`` [m] if given; at most ``limit`` of them (None: all)
+    after the first ``offset``, each with its track and line loaded.
     """
     query = select(Alert).join(Track, Alert.track_id == Track.id).join(Line)
     if status == "active":
@@ -92,7 +99,13 @@ def list_alerts(
     query = query.order_by(
         severity, Line.code, Track.code, Alert.start_chainage_m, Alert.wire, kind, Alert.id
     )
-    return list(session.scalars(query.limit(limit).offset(offset)))
+    return list(
+        session.scalars(
+            query.limit(limit)
+            .offset(offset)
+            .options(joinedload(Alert.track).joinedload(Track.line))
+        )
+    )
 
 
 def alert_json(alert: Alert) -> dict[str, Any]:
@@ -122,6 +135,77 @@ def alert_json(alert: Alert) -> dict[str, Any]:
         "span_measurement_id": alert.span_measurement_id,
         "details": alert.details,
     }
+
+
+def alert_counts(session: Session, status: str = "open") -> dict[str, int]:
+    """How many alerts of ``status`` there are of each level (every level of ``LEVELS``)."""
+    found = session.execute(
+        select(Alert.level, func.count()).where(Alert.status == status).group_by(Alert.level)
+    )
+    counts = {level: 0 for level in LEVELS}
+    counts.update({level: int(n) for level, n in found})
+    return counts
+
+
+def forecast_date(details: Mapping[str, Any] | None, key: str = "reach_at") -> date | None:
+    """The (UTC) date of an ISO time in a forecast alert's ``details[key]``: ``reach_at``, when
+    the limit is expected (``reach_earliest``, ``reach_latest``: its interval); None without
+    one."""
+    value = (details or {}).get(key)
+    if not isinstance(value, str):
+        return None
+    try:
+        moment = datetime.fromisoformat(value)
+    except ValueError:
+        return None
+    return (moment.astimezone(UTC) if moment.tzinfo else moment).date()
+
+
+def due_forecasts(session: Session, until: datetime, limit: int) -> tuple[int, list[Alert]]:
+    """The open and acknowledged forecast alerts whose limit is expected (``reach_at``) by
+    ``until``: how many, and the ``limit`` earliest (each with its track and line)."""
+    reach_at = Alert.details["reach_at"].as_string()
+    due = (Alert.kind == "forecast", Alert.status.in_(ACTIVE), reach_at <= iso_utc(until))
+    total = session.scalar(select(func.count()).select_from(Alert).where(*due)) or 0
+    earliest = session.scalars(
+        select(Alert)
+        .where(*due)
+        .options(joinedload(Alert.track).joinedload(Track.line))
+        .order_by(reach_at, Alert.id)
+        .limit(limit)
+    )
+    return int(total), list(earliest)
+
+
+def alert_stretch(alert: Alert) -> str:
+    """Where an alert lies: ``masts M1 to M2``, or its chainages without a register."""
+    if alert.mast_from is not None:
+        return f"masts {alert.mast_from} to {alert.mast_to}"
+    return f"{alert.start_chainage_m:.1f} to {alert.end_chainage_m:.1f} m"
+
+
+def alert_summary(alert: Alert) -> str:
+    """What an alert says, in one line with units: a minimum (or an anchor section's
+    average) against its limit, a forecast's date, interval and wear rate, or a geometry
+    check's value (height, stagger: mm; height gradient: per mille) against its limit."""
+    details = alert.details or {}
+    if alert.kind == "forecast":
+        low, high = details.get("reach_earliest"), details.get("reach_latest")
+        span = f"{(low or '-')[:10]} to {(high or 'never')[:10]}"
+        return (
+            f"reaches {alert.threshold:.2f} mm about {str(details.get('reach_at'))[:10]} "
+            f"({span}), wear {details.get('wear_rate_mm_per_year', 0.0):.3f} "
+            f"+- {details.get('wear_rate_se_mm_per_year', 0.0):.3f} mm/year"
+        )
+    if alert.kind == "geometry":
+        check = str(details.get("check", "geometry"))
+        unit = "per mille" if check == "height_gradient" else "mm"
+        text = f"{check} {alert.value:.1f} {unit}, limit {alert.threshold:.1f} {unit}"
+        if "design_mm" in details and "measured_mm" in details:
+            text += f" (at the mast {details['measured_mm']} mm, design {details['design_mm']} mm)"
+        return text
+    scope = "anchor section average" if details.get("anchor_section") else "minimum"
+    return f"{scope} {alert.value:.2f} mm, limit {alert.threshold:.2f} mm"
 
 
 def _alert(session: Session, alert_id: int) -> Alert:

@@ -35,8 +35,8 @@ from catenary.measurement.envelope import (
 from catenary.positions import positions_along
 from catenary.storage.database import session_scope
 from catenary.storage.models import Alert, Mast, Run, SpanMeasurement, Track
-from catenary.storage.runs import find_run, find_track
 from catenary.storage.store import Store
+from catenary.web.api.runs import run_of, track_of
 from catenary.web.app import WebState, state
 from catenary.web.auth import Principal, requires
 from catenary.web.errors import NotFound
@@ -174,14 +174,6 @@ class TrackProfileOut(BaseModel):
     alerts: AlertsOut
 
 
-def track_of(session: Session, line: str, track: str) -> Track:
-    """Track ``track`` of line ``line``; ``NotFound`` (404) when unknown."""
-    try:
-        return find_track(session, line, track)
-    except UserError as exc:
-        raise NotFound(str(exc)) from None
-
-
 def track_runs(
     session: Session, track: Track, reference: str | None = None
 ) -> tuple[Run | None, Run | None]:
@@ -196,10 +188,7 @@ def track_runs(
         if run is None:
             return None, None
     else:
-        try:
-            run = find_run(session, reference)
-        except UserError as exc:
-            raise NotFound(str(exc)) from None
+        run = run_of(session, reference)
         if run.track_id != track.id:
             raise NotFound(
                 f"run {reference} is not on line {track.line.code!r} track {track.code!r}"

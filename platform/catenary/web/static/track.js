@@ -279,6 +279,27 @@
     document.addEventListener("mouseup", up);
   }
 
+  /* A series' gaps: wherever a null stands between two of its points (``table`` puts one in
+     each stretch where nothing was measured), whatever uPlot's own null handling does when
+     several points share a pixel column. */
+  function nullGaps(u, seriesIdx, idx0, idx1) {
+    const xs = u.data[0];
+    const ys = u.data[seriesIdx];
+    const gaps = [];
+    let last = null;
+    let broken = false;
+    for (let i = idx0; i <= idx1; i++) {
+      const y = ys[i];
+      if (y === null) broken = last !== null;
+      else if (y !== undefined) {
+        if (broken) uPlot.addGap(gaps, Math.round(u.valToPos(xs[last], "x", true)), Math.round(u.valToPos(xs[i], "x", true)));
+        last = i;
+        broken = false;
+      }
+    }
+    return gaps;
+  }
+
   function chartOf(panel, index, width) {
     const level = profile.bin_m;
     const tables = [];
@@ -295,11 +316,11 @@
         tables.push(t);
         const label = `run ${run.id} wire ${wire.wire_position}`;
         if (t.length === 3) {
-          series.push({ label: `${label} min`, stroke, width: 1, points: { show: false } });
-          series.push({ label: `${label} max`, stroke, width: 1, points: { show: false } });
+          series.push({ label: `${label} min`, stroke, width: 1, points: { show: false }, gaps: nullGaps });
+          series.push({ label: `${label} max`, stroke, width: 1, points: { show: false }, gaps: nullGaps });
           bands.push({ series: [series.length - 1, series.length - 2], fill: `rgba(${rgb},${alpha * 0.3})` });
         } else {
-          series.push({ label, stroke, width: 1, points: { show: false } });
+          series.push({ label, stroke, width: 1, points: { show: false }, gaps: nullGaps });
         }
       });
     });
