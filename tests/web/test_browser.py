@@ -6,7 +6,8 @@ open alert on the latest run's most worn span, and the users of ``tests/web/conf
 Playwright drives Debian's Chromium headless (``/usr/bin/chromium``; ``.ci/run`` installs it,
 and a machine without it fails here rather than skipping). Any console message of level
 error, uncaught script error, failed request or answer of 400 or more fails the test. Each
-page's screenshot is saved in the test's folder (``pytest --basetemp DIR`` keeps them).
+page's screenshot is saved in the test's folder, ``screenshots/NAME.png`` (``pytest --basetemp
+DIR`` keeps them to be looked at).
 """
 
 from __future__ import annotations
@@ -22,14 +23,22 @@ from urllib.parse import parse_qs, urlsplit
 import pytest
 import uvicorn
 from click.testing import CliRunner
-from playwright.sync_api import Browser, ConsoleMessage, Page, Playwright, Response, sync_playwright
+from playwright.sync_api import (
+    Browser,
+    ConsoleMessage,
+    Page,
+    Playwright,
+    Request,
+    Response,
+    sync_playwright,
+)
 from sqlalchemy import Engine, select
 from sqlalchemy.orm import Session
 
 from catenary.cli import cli
 from catenary.config import load_settings
 from catenary.storage.database import session_scope
-from catenary.storage.models import Run, SpanMeasurement
+from catenary.storage.models import Alert, Run, SpanMeasurement
 from catenary.storage.users import add_user
 from catenary.web.app import create_app
 from tests.conftest import Build, SmallRun
@@ -60,27 +69,35 @@ class Site:
     line: str
     track: str
     mast: str
+    wire_position: int
     alert_id: int
 
 
 def _worn_span_alert(session: Session) -> tuple[SpanMeasurement, int]:
     """An open alert on the latest run's most worn span; the span and the alert's id."""
-    latest = session.scalars(select(Run).order_by(Run.started_at.desc())).first()
+    latest = session.scalars(select(Run).order_by(Run.started_at.desc(), Run.id.desc())).first()
     assert latest is not None
     worn = session.scalars(
         select(SpanMeasurement)
-        .where(SpanMeasurement.run_id == latest.id)
+        .where(
+            SpanMeasurement.processing_id == latest.processing_id,
+            SpanMeasurement.min_residual_thickness_mm.is_not(None),
+        )
         .order_by(SpanMeasurement.min_residual_thickness_mm)
     ).first()
     assert worn is not None
-    alert = Build.alert_on(
-        worn,
-        rule="db-ril-997#1",
-        level="urgent",
-        kind="threshold",
+    alert = Build.alert(  # an alert's wire is the wire position
+        latest.track,
+        f"browser-test:{worn.id}",
+        wire=worn.wire_position,
+        mast_from=worn.mast_from,
+        mast_to=worn.mast_to,
+        start_chainage_m=worn.start_chainage_m,
+        end_chainage_m=worn.end_chainage_m,
+        span_measurement_id=worn.id,
+        value=worn.min_residual_thickness_mm,
         threshold=worn.min_residual_thickness_mm + 0.2,
         raised_at=latest.started_at,
-        condition_key=f"browser-test:{worn.id}",
     )
     session.add(alert)
     session.flush()
@@ -108,7 +125,7 @@ def site(
             add_user(session, name, role, PASSWORD, actor="test", now=now)
         worn, alert_id = _worn_span_alert(session)
         line, track = worn.run.line.code, worn.run.track.code
-        mast = worn.mast_from
+        mast, position = worn.mast_from, worn.wire_position
     assert mast is not None
     app = create_app(load_settings(database_url=database_url))
     port = _free_port()
@@ -122,7 +139,7 @@ def site(
             break
         threading.Event().wait(0.05)
     assert server.started, "uvicorn did not start"
-    yield Site(f"http://127.0.0.1:{port}", line, track, mast, alert_id)
+    yield Site(f"http://127.0.0.1:{port}", line, track, mast, position, alert_id)
     server.should_exit = True
     thread.join(timeout=30)
 
@@ -165,10 +182,13 @@ class Visit:
 
         self.page.on("console", console)
         self.page.on("pageerror", lambda error: self.problems.append(f"script: {error}"))
-        self.page.on(
-            "requestfailed",
-            lambda request: self.problems.append(f"failed: {request.url} {request.failure}"),
-        )
+
+        def failed(request: Request) -> None:
+            # a request the next navigation cut short (the favicon on sign-out) did not fail
+            if request.failure != "net::ERR_ABORTED":
+                self.problems.append(f"failed: {request.url} {request.failure}")
+
+        self.page.on("requestfailed", failed)
         self.page.on("response", answered)
 
     def shot(self, name: str) -> None:
@@ -192,7 +212,8 @@ def visit(browser: Browser, tmp_path: Path) -> Iterator[Visit]:
     assert made.problems == [], "\n".join(made.problems)
 
 
-def sign_in(visit: Visit, base: str, name: str, password: str = PASSWORD) -> None:
+def sign_in(visit: Visit, name: str, password: str = PASSWORD) -> None:
+    """Fill in and send the sign-in form the browser shows."""
     page = visit.page
     page.get_by_label("User name").fill(name)
     page.get_by_label("Password").fill(password)
@@ -201,6 +222,7 @@ def sign_in(visit: Visit, base: str, name: str, password: str = PASSWORD) -> Non
 
 
 def query(url: str) -> dict[str, str]:
+    """The query parameters of an address, decoded."""
     return {k: v[0] for k, v in parse_qs(urlsplit(url).query).items()}
 
 
@@ -209,7 +231,7 @@ def test_a_planner_signs_in_and_out(site: Site, visit: Visit) -> None:
     page.goto(site.base + "/")
     assert visit.path() == "/sign-in"  # the overview asks for a user first
     visit.shot("sign-in")
-    sign_in(visit, site.base, "pat")
+    sign_in(visit, "pat")
     assert visit.path() == "/"
     assert page.locator("header .who").inner_text().startswith("pat")
     visit.shot("overview")
@@ -218,3 +240,94 @@ def test_a_planner_signs_in_and_out(site: Site, visit: Visit) -> None:
     assert visit.path() == "/sign-in"
     page.goto(site.base + "/")
     assert visit.path() == "/sign-in"  # the cookie is gone: the overview redirects again
+
+
+def links(page: Page, path: str) -> list[str]:
+    """The addresses of the page's links to ``path`` (with their query)."""
+    hrefs: list[str] = page.eval_on_selector_all(
+        f"main a[href^='{path}']", "found => found.map(a => a.getAttribute('href'))"
+    )
+    return hrefs
+
+
+def test_a_planner_follows_a_worn_span_to_its_alert_and_acknowledges_it(
+    site: Site, visit: Visit, engine: Engine
+) -> None:
+    page = visit.page
+    page.goto(site.base + "/")
+    sign_in(visit, "pat")
+    assert visit.path() == "/"
+    visit.shot("overview")
+
+    # the worn span is in the overview's worst spans; its link leads to its history
+    spans = [
+        href
+        for href in links(page, "/span?")
+        if query(href)
+        == {
+            "line": site.line,
+            "track": site.track,
+            "mast": site.mast,
+            "wire_position": str(site.wire_position),
+        }
+    ]
+    assert spans, f"no link to the span at mast {site.mast} on the overview"
+    page.locator(f"main a[href='{spans[0]}']").first.click()
+    page.wait_for_load_state()
+    assert visit.path() == "/span"
+    text = page.locator("main").inner_text()
+    assert site.mast in text and "open" in page.locator("main table.alerts").inner_text()
+    visit.shot("span")
+
+    # from the span to its alert
+    to_alerts = links(page, "/alerts")
+    assert to_alerts, "the span page has no link to its alerts"
+    page.locator(f"main a[href='{to_alerts[0]}']").first.click()
+    page.wait_for_load_state()
+    assert visit.path() == "/alerts"
+    visit.shot("alerts")
+
+    form = page.locator(f"form[action$='/alerts/{site.alert_id}/acknowledge']")
+    assert form.count() == 1, f"no acknowledge form of alert {site.alert_id}"
+    form.locator("button").click()
+    page.wait_for_load_state()
+    assert visit.path() == "/alerts"
+    text = page.locator("main").inner_text()
+    assert f"Alert {site.alert_id} acknowledged" in text and "acknowledged by pat" in text
+    visit.shot("alert-acknowledged")
+    with session_scope(engine, read_only=True) as session:
+        alert = session.get_one(Alert, site.alert_id)
+        assert (alert.status, alert.acknowledged_by) == ("acknowledged", "pat")
+
+    page.get_by_role("button", name="Sign out").click()
+    page.wait_for_load_state()
+    assert visit.path() == "/sign-in"
+    page.goto(site.base + "/")
+    assert visit.path() == "/sign-in"
+
+
+def test_the_track_view_draws_its_chart(site: Site, visit: Visit) -> None:
+    page = visit.page
+    page.goto(f"{site.base}/track?line={site.line}&track={site.track}")
+    sign_in(visit, "vera")
+    assert visit.path() == "/track"
+    # a 60 m run is below a kilometre: the view reads the raw samples
+    page.locator("#track-resolution:not(:empty)").wait_for()
+    assert page.locator("#track-resolution").inner_text() == "raw samples"
+    charts = page.locator("#track-charts canvas")
+    assert charts.count() == 3  # residual thickness, height, stagger
+    for k in range(3):
+        box = charts.nth(k).bounding_box()
+        assert box is not None and box["width"] > 800 and box["height"] > 100, box
+        # drawn: a few thousand pixels of lines, not an empty canvas
+        inked: int = charts.nth(k).evaluate(
+            """canvas => {
+                const data = canvas.getContext("2d")
+                    .getImageData(0, 0, canvas.width, canvas.height).data;
+                let inked = 0;
+                for (let i = 3; i < data.length; i += 4) if (data[i] > 0) inked++;
+                return inked;
+            }"""
+        )
+        assert inked > 2000, inked
+    visit.shot("track")
