@@ -8,7 +8,7 @@ import json
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from sqlalchemy import select
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session, selectinload
 
 from catenary.domain import OPTIONAL_MAST_NUMBERS, TrackRegister, VehicleGeometry
@@ -27,6 +27,7 @@ from catenary.storage.rigs import register_rig_calibration
 
 __all__ = [
     "alignment_summary",
+    "count_runs",
     "find_mast",
     "find_run",
     "find_stored_run",
@@ -241,26 +242,45 @@ def pending_runs(session: Session, *, line: str | None = None) -> list[int]:
     return list(session.scalars(query.order_by(Run.id)))
 
 
-def list_runs(session: Session, *, line: str | None = None, track: str | None = None) -> list[Run]:
-    """The stored runs, oldest first (by id), of line ``line`` and track ``track`` if given;
+def _runs_of(query: Any, line: str | None, track: str | None) -> Any:
+    query = query.join(Line, Run.line_id == Line.id).outerjoin(Track, Run.track_id == Track.id)
+    if line is not None:
+        query = query.where(Line.code == line)
+    if track is not None:
+        query = query.where(Track.code == track)
+    return query
+
+
+def list_runs(
+    session: Session,
+    *,
+    line: str | None = None,
+    track: str | None = None,
+    newest_first: bool = False,
+    limit: int | None = None,
+    offset: int = 0,
+) -> list[Run]:
+    """The stored runs by id (oldest first, or ``newest_first``), of line ``line`` and track
+    ``track`` if given, at most ``limit`` of them (None: all) after the first ``offset``;
     each with its line, track, vehicle and latest processing loaded."""
     query = (
-        select(Run)
-        .join(Line, Run.line_id == Line.id)
-        .outerjoin(Track, Run.track_id == Track.id)
+        _runs_of(select(Run), line, track)
         .options(
             selectinload(Run.line),
             selectinload(Run.track),
             selectinload(Run.vehicle),
             selectinload(Run.processing),
         )
-        .order_by(Run.id)
+        .order_by(Run.id.desc() if newest_first else Run.id)
+        .limit(limit)
+        .offset(offset)
     )
-    if line is not None:
-        query = query.where(Line.code == line)
-    if track is not None:
-        query = query.where(Track.code == track)
     return list(session.scalars(query))
+
+
+def count_runs(session: Session, *, line: str | None = None, track: str | None = None) -> int:
+    """How many runs ``list_runs`` lists without ``limit``."""
+    return int(session.scalar(_runs_of(select(func.count(Run.id)), line, track)) or 0)
 
 
 def find_track(session: Session, line: str, track: str) -> Track:
