@@ -6,9 +6,12 @@ from __future__ import annotations
 
 import hashlib
 import os
+import re
+import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from datetime import date, datetime, timedelta
 from pathlib import Path
@@ -24,6 +27,7 @@ from catenary.cli import cli
 from catenary.config import Settings, load_settings
 from catenary.errors import UserError
 from catenary.fleet.reprocess import Selection, select_runs
+from catenary.fleet.transfer import run_file_key
 from catenary.measurement.process import PACKAGE_VERSION, processing_settings
 from catenary.storage.database import make_engine, session_scope
 from catenary.storage.models import (
@@ -367,3 +371,38 @@ def test_until_before_since_is_refused(database_url: str) -> None:
                     "2024-05-01")  # fmt: skip
     assert result.exit_code == 1
     assert result.output == "Error: --until 2024-05-01 is before --since 2024-05-02\n"
+
+
+@pytest.mark.slow
+def test_a_run_file_only_in_the_store_is_copied_to_the_worker_first(
+    small_run: Any, s3_settings: Settings, tmp_path: Path
+) -> None:
+    assert s3_settings.config_path is not None
+    url = f"sqlite:///{tmp_path / 'catenary.sqlite'}"
+    recorded = tmp_path / "vehicle" / "run.h5"
+    recorded.parent.mkdir()
+    shutil.copyfile(small_run.run, recorded)
+    side = ("--config", s3_settings.config_path, "--db", url)
+    succeeded(invoke(*side, "db", "upgrade"))
+    succeeded(
+        invoke(*side, "process", recorded, "--rig", small_run.rig, "--masts", small_run.masts)
+    )
+    engine = make_engine(url)
+    with session_scope(engine, read_only=True) as session:
+        run_uuid = session.get_one(Run, 1).uuid
+    engine.dispose()
+    # what push --run-files does: the file under runs/RUN.h5; then it is gone from the vehicle
+    store = open_store(s3_settings)
+    sent = store.put_file(recorded, run_file_key(run_uuid))
+    recorded.unlink()
+    recalibrated = tmp_path / "recalibrated.toml"
+    recalibrated.write_text(small_run.rig.read_text() + "\n# recalibrated\n")
+
+    result = invoke(*side, "reprocess", "--rig", recalibrated, "--workers", 1)
+    output = succeeded(result)
+    copied = re.search(r"stored as processing \S+ in \S+ s, its file copied from the store "
+                       r"\((\S+) MB at (\d+) MB/s\)", output)  # fmt: skip
+    assert copied is not None, output
+    assert float(copied.group(1)) == pytest.approx(sent.size_bytes / 1e6, abs=0.05)
+    assert int(copied.group(2)) > 0
+    assert not list(Path(tempfile.gettempdir()).glob("catenary-reprocess-*/run.h5"))  # removed
