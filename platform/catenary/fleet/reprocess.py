@@ -28,6 +28,7 @@ line; the others go on.
 
 from __future__ import annotations
 
+import logging
 import os
 import tempfile
 import time
@@ -162,10 +163,13 @@ def select_runs(
             raise UserError(f"no vehicle {selection.vehicle!r} in the database")
         runs = [run for run in runs if run.vehicle.name == selection.vehicle]
     chosen = []
+    latest_rigs: dict[int, tuple[str, str]] = {}
     for run in runs:
         if rig is None:
-            calibration = latest_rig_calibration(session, run.vehicle_id)
-            name, text = calibration.name, calibration.content_toml
+            if run.vehicle_id not in latest_rigs:
+                calibration = latest_rig_calibration(session, run.vehicle_id)
+                latest_rigs[run.vehicle_id] = calibration.name, calibration.content_toml
+            name, text = latest_rigs[run.vehicle_id]
         else:
             name, text = rig
         latest = latest_processing(run)
@@ -207,18 +211,14 @@ def reprocess(
         ReprocessTask(config, settings.database_url, run.id, run.uuid, name, text, processor)
         for run, name, text in chosen
     ]
-    outcomes = []
     with _dask_client(scheduler, workers or os.cpu_count() or 1) as client:
-        outcomes = _run_tasks(client, tasks, on_outcome)
-    return outcomes
+        return _run_tasks(client, tasks, on_outcome)
 
 
 @contextmanager
 def _dask_client(scheduler: str | None, workers: int) -> Iterator[Client]:
     """A client of the scheduler at ``scheduler``, else of a new ``LocalCluster`` of
     ``workers`` single-threaded worker processes on 127.0.0.1."""
-    import logging
-
     from distributed import Client, LocalCluster
 
     if scheduler is not None:
@@ -258,7 +258,9 @@ def _run_tasks(
         try:
             outcome = future.result()
         except KilledWorker:
-            outcome = _failed(task, "its worker died each time it ran it", 0.0)
+            outcome = _failed(
+                task, "the workers running it died (distributed.scheduler.allowed-failures)", 0.0
+            )
         except Exception as exc:  # the task could not run (a worker without catenary...)
             outcome = _failed(task, one_line(exc), 0.0)
         on_outcome(outcome)
