@@ -9,10 +9,12 @@ import os
 import re
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from datetime import date, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -373,10 +375,37 @@ def test_until_before_since_is_refused(database_url: str) -> None:
     assert result.output == "Error: --until 2024-05-01 is before --since 2024-05-02\n"
 
 
+@pytest.fixture
+def dask_cluster(s3_settings: Settings, tmp_path: Path) -> Iterator[str]:
+    """A Dask cluster as on real machines: ``dask scheduler`` and one ``dask worker`` (one
+    process, one thread) on 127.0.0.1, started in this test's environment (the store's keys
+    set); gives the scheduler's address."""
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    dask = Path(sys.executable).with_name("dask")
+    address = f"tcp://127.0.0.1:{port}"
+    log = (tmp_path / "dask.log").open("wb")
+    commands = [
+        [dask, "scheduler", "--host", "127.0.0.1", "--port", str(port), "--no-dashboard"],
+        [dask, "worker", address, "--nworkers", "1", "--nthreads", "1", "--no-dashboard",
+         "--host", "127.0.0.1"],
+    ]  # fmt: skip
+    started = [subprocess.Popen(c, stdout=log, stderr=subprocess.STDOUT) for c in commands]
+    try:
+        yield address
+    finally:
+        for process in reversed(started):
+            process.terminate()
+            process.wait(timeout=30)
+        log.close()
+
+
 @pytest.mark.slow
 def test_a_run_file_only_in_the_store_is_copied_to_the_worker_first(
-    small_run: Any, s3_settings: Settings, tmp_path: Path
+    small_run: Any, s3_settings: Settings, dask_cluster: str, tmp_path: Path
 ) -> None:
+    """On an existing cluster (--scheduler)."""
     assert s3_settings.config_path is not None
     url = f"sqlite:///{tmp_path / 'catenary.sqlite'}"
     recorded = tmp_path / "vehicle" / "run.h5"
@@ -398,8 +427,9 @@ def test_a_run_file_only_in_the_store_is_copied_to_the_worker_first(
     recalibrated = tmp_path / "recalibrated.toml"
     recalibrated.write_text(small_run.rig.read_text() + "\n# recalibrated\n")
 
-    result = invoke(*side, "reprocess", "--rig", recalibrated, "--workers", 1)
+    result = invoke(*side, "reprocess", "--rig", recalibrated, "--scheduler", dask_cluster)
     output = succeeded(result)
+    assert output.startswith(f"reprocessing 1 run(s) on {dask_cluster}\n"), output
     copied = re.search(r"stored as processing \S+ in \S+ s, its file copied from the store "
                        r"\((\S+) MB at (\d+) MB/s\)", output)  # fmt: skip
     assert copied is not None, output
