@@ -172,9 +172,12 @@ def select_runs(
             name, text = latest_rigs[run.vehicle_id]
         else:
             name, text = rig
-        latest = latest_processing(run)
-        if selection.stale and ProcessingKey.of(latest) == processing_key(
-            settings, processor, latest.wire_type, text
+        latest = run.processing  # None: half stored; its task says so
+        if (
+            selection.stale
+            and latest is not None
+            and ProcessingKey.of(latest)
+            == processing_key(settings, processor, latest.wire_type, text)
         ):
             continue
         chosen.append((run, name, text))
