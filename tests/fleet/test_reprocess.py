@@ -15,6 +15,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator
+from concurrent.futures import ThreadPoolExecutor
 from datetime import date, datetime, timedelta
 from pathlib import Path
 from typing import Any
@@ -28,7 +29,7 @@ from sqlalchemy.orm import Session
 from catenary.cli import cli
 from catenary.config import Settings, load_settings
 from catenary.errors import UserError
-from catenary.fleet.reprocess import Selection, select_runs
+from catenary.fleet.reprocess import ReprocessTask, Selection, reprocess_run, select_runs
 from catenary.fleet.transfer import run_file_key
 from catenary.measurement.process import PACKAGE_VERSION, processing_settings
 from catenary.storage.database import make_engine, session_scope
@@ -436,3 +437,27 @@ def test_a_run_file_only_in_the_store_is_copied_to_the_worker_first(
     assert float(copied.group(1)) == pytest.approx(sent.size_bytes / 1e6, abs=0.05)
     assert int(copied.group(2)) > 0
     assert not list(Path(tempfile.gettempdir()).glob("catenary-reprocess-*/run.h5"))  # removed
+
+
+@pytest.mark.slow
+def test_the_same_run_reprocessed_twice_at_once_is_stored_once(
+    database_url: str, small_run: Any, tmp_path: Path
+) -> None:
+    """Two tasks of one run at once (a task Dask ran again while the first still ran): the
+    storing transaction checks, the run locked, that no alike processing came meanwhile."""
+    succeeded(invoke("--db", database_url, "db", "upgrade"))
+    succeeded(invoke(*small_run.process_args(database_url)))
+    text = small_run.rig.read_text() + "\n# recalibrated\n"
+    engine = make_engine(database_url)
+    with session_scope(engine, read_only=True) as session:
+        run = session.get_one(Run, 1)
+        task = ReprocessTask(None, database_url, run.id, run.uuid, "recalibrated", text)
+    with ThreadPoolExecutor(2) as pool:
+        outcomes = sorted(pool.map(reprocess_run, [task, task]), key=lambda o: o.status)
+    assert [o.status for o in outcomes] == ["skipped", "stored"], outcomes
+    assert outcomes[0].reason == "processed so meanwhile (by another task)"
+    with session_scope(engine, read_only=True) as session:
+        run = session.get_one(Run, 1)
+        assert len(run.processings) == 2
+        assert run.processing is not None and run.processing.uuid == outcomes[1].processing_uuid
+    engine.dispose()
