@@ -112,7 +112,7 @@ def store_run(database_url: str, store: Store, length_m: float, seed: int) -> st
         with session_scope(engine) as session:
             run, _ = store_processing(
                 session, line=LINE, track=TRACK, register=register, geometry=GEOMETRY,
-                rig_name="bench", rig_text=RIG_TEXT, replacing=False, span_rows=rows,
+                rig_name="bench", rig_text=RIG_TEXT, replacing=None, span_rows=rows,
                 run_values=dict(
                     direction="increasing", source_file=f"/runs/bench-{seed}.h5",
                     source_sha256=source, started_at=started, scans=int(length_m * SAMPLES_PER_M),

@@ -111,3 +111,22 @@ def test_the_run_report_of_a_processed_run(
         page.index('id="alignment"') : page.index("</td>", page.index('id="alignment"'))
     ]
     assert "start chainage + encoder distance" in alignment or "registration points" in alignment
+
+
+def test_the_runs_api_pages(web: Web, engine: Engine, build: type[Build]) -> None:
+    with session_scope(engine) as session:
+        first = build.run(session)
+        for k in range(1, 5):
+            build.run(
+                session,
+                line=first.line,
+                track=first.track,
+                vehicle=first.vehicle,
+                rig_calibration=first.rig_calibration,
+                source_sha256=f"{k:064x}",
+            )
+    api = web.api("vera")
+    everything = [r["id"] for r in api.get("/api/v1/runs").json()]
+    pages = [api.get(f"/api/v1/runs?limit=2&offset={o}").json() for o in (0, 2, 4)]
+    assert [r["id"] for page in pages for r in page] == everything and len(everything) == 5
+    assert api.get("/api/v1/runs?limit=0").status_code == 422

@@ -15,7 +15,7 @@ import click
 
 from catenary.cli import app
 from catenary.cli.db import db
-from catenary.cli.fleet import pull, push
+from catenary.cli.fleet import pull, push, reprocess
 from catenary.cli.maintenance import alerts, maintenance
 from catenary.cli.plugins import plugins_command
 from catenary.cli.record import record
@@ -60,6 +60,7 @@ for _command in (
     runs,
     push,
     pull,
+    reprocess,
     notify,
     scheduler,
     report,

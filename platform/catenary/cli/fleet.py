@@ -1,16 +1,21 @@
-"""``catenary push`` and ``catenary pull``: runs to the central side, the register from it."""
+"""``catenary push`` and ``catenary pull`` (runs to the central side, the register from it) and
+``catenary reprocess`` (stored runs processed again on Dask)."""
 
 from __future__ import annotations
 
 import sys
+import time
+from datetime import datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import click
 
 from catenary.cli.app import app_of
+from catenary.domain import CODE_LENGTH
 from catenary.errors import UserError
 from catenary.plugins import database_option
+from catenary.text import identifier_option, printable
 
 if TYPE_CHECKING:
     from catenary.config import Settings
@@ -146,3 +151,99 @@ def pull(ctx: click.Context, central_path: Path) -> None:
             + " (install the plugin that provides them)",
             err=True,
         )
+
+
+@click.command("reprocess")
+@click.argument("references", metavar="[RUN]...", nargs=-1)
+@click.option("--line", help="Runs of this line.", callback=identifier_option(CODE_LENGTH))
+@click.option("--track", help="Runs of this track.", callback=identifier_option(CODE_LENGTH))
+@click.option("--since", type=click.DateTime(["%Y-%m-%d"]), metavar="YYYY-MM-DD",
+              help="Runs started on this day (UTC) or later.")  # fmt: skip
+@click.option("--until", type=click.DateTime(["%Y-%m-%d"]), metavar="YYYY-MM-DD",
+              help="Runs started on this day (UTC) or earlier.")  # fmt: skip
+@click.option("--vehicle", help="Runs this vehicle measured.")
+@click.option("--stale", is_flag=True,
+              help="Only runs whose latest processing is not what reprocessing makes now (another "
+                   "rig calibration, catenary version, processor or settings).")  # fmt: skip
+@click.option("--rig", "rig_path", type=click.Path(path_type=Path, dir_okay=False),
+              help="Rig calibration TOML (default: each vehicle's latest stored one).")  # fmt: skip
+@click.option("--processor", default="linescan-stereo", show_default=True,
+              help="Processing method (catenary plugins lists them).")  # fmt: skip
+@click.option("--scheduler", metavar="tcp://HOST:8786",
+              help="An existing Dask cluster's scheduler (default: a local cluster).")  # fmt: skip
+@click.option("--workers", type=click.IntRange(min=1), metavar="N",
+              help="Worker processes of the local cluster (default: the cores).")  # fmt: skip
+@database_option
+@click.pass_context
+def reprocess(
+    ctx: click.Context,
+    references: tuple[str, ...],
+    line: str | None,
+    track: str | None,
+    since: datetime | None,
+    until: datetime | None,
+    vehicle: str | None,
+    stale: bool,
+    rig_path: Path | None,
+    processor: str,
+    scheduler: str | None,
+    workers: int | None,
+) -> None:
+    """Process stored runs again from their run files, each into a new processing, on Dask.
+
+    Runs whose latest processing is already what this would make are skipped, so running it
+    again goes on where it stopped. A run whose file is neither where it was recorded nor in
+    the store (push --run-files) is skipped, saying so.
+    """
+    from catenary.fleet.reprocess import Outcome, Selection
+    from catenary.fleet.reprocess import reprocess as reprocess_runs
+
+    if since is not None and until is not None and until < since:
+        raise UserError(f"--until {until:%Y-%m-%d} is before --since {since:%Y-%m-%d}")
+    if scheduler is not None and workers is not None:
+        raise UserError(
+            "--workers is for the local cluster: an existing one (--scheduler) has its own"
+        )
+    settings = app_of(ctx).settings
+    selection = Selection(
+        references=references,
+        line=line,
+        track=track,
+        since=None if since is None else since.date(),
+        until=None if until is None else until.date(),
+        vehicle=vehicle,
+        stale=stale,
+    )
+    started = time.monotonic()
+    where = scheduler or "a local cluster"
+
+    def selected(runs: int) -> None:
+        click.echo(f"reprocessing {runs} run(s) on {where}" if runs else "no run to reprocess")
+
+    def finished(outcome: Outcome) -> None:
+        click.echo(printable(outcome.line()))
+
+    outcomes = reprocess_runs(
+        settings,
+        selection,
+        rig_path=rig_path,
+        processor=processor,
+        scheduler=scheduler,
+        workers=workers,
+        on_selected=selected,
+        on_outcome=finished,
+    )
+    if not outcomes:
+        return
+    counts = {s: sum(o.status == s for o in outcomes) for s in ("stored", "skipped", "failed")}
+    click.echo(
+        f"reprocessed {len(outcomes)} run(s) in {time.monotonic() - started:.1f} s: "
+        + ", ".join(f"{n} {status}" for status, n in counts.items())
+    )
+    if counts["stored"]:
+        click.echo(
+            f"alerts     {counts['stored']} run(s) pending: catenary alerts evaluate --all "
+            "evaluates them"
+        )
+    if counts["failed"]:
+        raise UserError(f"{counts['failed']} run(s) failed (above)")

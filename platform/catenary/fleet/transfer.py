@@ -27,22 +27,19 @@ What moves, and how a push stays whole:
 
 from __future__ import annotations
 
-import math
 import shutil
 import tempfile
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from sqlalchemy import Engine, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, selectinload
 
 from catenary.config import Settings
-from catenary.domain import OPTIONAL_MAST_NUMBERS, TrackRegister, VehicleGeometry
+from catenary.domain import VehicleGeometry
 from catenary.errors import UserError
 from catenary.measurement.envelope import write_envelopes
 from catenary.measurement.evidence import evidence_prefix
@@ -57,7 +54,7 @@ from catenary.storage.models import (
     Track,
 )
 from catenary.storage.rigs import register_rig_calibration
-from catenary.storage.runs import register_track, track_masts
+from catenary.storage.runs import register_track, track_masts, track_register
 from catenary.storage.store import Store, StoredObject, envelope_key, open_store, samples_key
 
 __all__ = ["PullResult", "PushResult", "pull", "push", "run_file_key"]
@@ -208,22 +205,6 @@ def _outgoing(local_engine: Engine, central_engine: Engine) -> list[_Outgoing]:
     return found
 
 
-@contextmanager
-def _readable(store: Store, key: str, scratch: Path) -> Iterator[Path]:
-    """``key`` of ``store`` as a local file: the store's own in a folder, else a copy."""
-    path = store.local_path(key)
-    if path is not None:
-        yield path
-        return
-    copy = scratch / Path(key).name
-    with store.open_input(key) as source, copy.open("wb") as target:
-        shutil.copyfileobj(source, target)
-    try:
-        yield copy
-    finally:
-        copy.unlink(missing_ok=True)
-
-
 def _send_samples(item: _Outgoing, local: Store, central: Store, scratch: Path) -> StoredObject:
     """Put the processing's samples file in the central store (unless it is there already,
     read back whole) and give its key, size and SHA-256."""
@@ -236,7 +217,7 @@ def _send_samples(item: _Outgoing, local: Store, central: Store, scratch: Path) 
         size, sha256 = known.size_bytes, known.sha256
     if central.verify(key, size, sha256):
         return StoredObject(key, size, sha256)
-    with _readable(local, processing.samples_key, scratch) as path:
+    with local.readable(processing.samples_key, scratch) as path:
         placed = central.put_file(path, key)
     if (placed.size_bytes, placed.sha256) != (size, sha256):
         central.delete(key)
@@ -387,7 +368,7 @@ def _check_register(session: Session, track: Track, item: _Outgoing) -> None:
     masts = {m.code: m for m in session.scalars(select(Mast).where(Mast.track_id == track.id))}
     if not masts:
         if item.masts:
-            track_masts(session, track, _register(item.line, track.code, item.masts))
+            track_masts(session, track, track_register(item.line, track.code, item.masts))
         return
     for span in sorted(item.spans, key=lambda s: s.start_chainage_m):
         for code, chainage in ((span.mast_from, span.start_chainage_m),
@@ -406,26 +387,6 @@ def _check_register(session: Session, track: Track, item: _Outgoing) -> None:
                 f"against another register than the central one: mast {code} {problem} "
                 "(catenary pull --from CENTRAL.toml, then process it again with --replace)"
             )
-
-
-def _register(line: str, track: str, masts: Sequence[Mast]) -> TrackRegister:
-    """Masts as a ``TrackRegister`` (sorted by chainage), every column given."""
-    ordered = sorted(masts, key=lambda m: m.chainage_m)
-
-    def numbers(name: str) -> np.ndarray:
-        values = [getattr(m, name) for m in ordered]
-        return np.array([math.nan if v is None else v for v in values], dtype=np.float64)
-
-    return TrackRegister(
-        line=line,
-        track=track,
-        mast=tuple(m.code for m in ordered),
-        chainage_m=numbers("chainage_m"),
-        wire_type=tuple(m.wire_type for m in ordered),
-        design_stagger_mm=numbers("design_stagger_mm"),
-        anchor_section=tuple(m.anchor_section for m in ordered),
-        **{name: numbers(name) for name in OPTIONAL_MAST_NUMBERS},
-    )
 
 
 @dataclass
@@ -449,7 +410,7 @@ def pull(local: Settings, central: Settings, installed_wire_types: Sequence[str]
     with open_database(central) as engine, session_scope(engine, read_only=True) as session:
         lines = {line.code: line.name for line in session.scalars(select(Line))}
         registers = [
-            _register(track.line.code, track.code, track.masts)
+            track_register(track.line.code, track.code, track.masts)
             for track in session.scalars(
                 select(Track).options(selectinload(Track.masts), selectinload(Track.line))
             )

@@ -74,6 +74,7 @@ import numpy as np
 import pyarrow as pa
 from sqlalchemy import Engine, select
 from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
 
 from catenary.arrays import FloatArray
 from catenary.config import Settings, did_you_mean
@@ -109,8 +110,13 @@ from catenary.measurement.vehicle import load_vehicle_geometry
 from catenary.plugins import BlockProcessor, ImageLocator, PluginRegistry, RunChecker
 from catenary.positions import wire_positions
 from catenary.storage.database import open_database, session_scope
-from catenary.storage.models import Processing, SpanMeasurement, run_uuid
-from catenary.storage.runs import find_stored_run, settings_sha256, store_processing
+from catenary.storage.models import Processing, Run, SpanMeasurement, run_uuid
+from catenary.storage.runs import (
+    ProcessingKey,
+    find_stored_run,
+    settings_sha256,
+    store_processing,
+)
 from catenary.storage.store import (
     ENVELOPES_PREFIX,
     Store,
@@ -129,6 +135,7 @@ __all__ = [
     "StoredThenInterrupted",
     "database_fingerprint",
     "process_run",
+    "processing_key",
     "processing_settings",
     "remove_abandoned_scratch",
 ]
@@ -172,6 +179,13 @@ class ProcessRequest:
     track: str | None = None
     processor: str = DEFAULT_PROCESSOR
     replace: bool = False
+    register: TrackRegister | None = None
+    """The register of the run's track already read (the stored one), instead of
+    ``register_path``."""
+    into_run: int | None = None
+    """The stored run to process again (``catenary reprocess``): the run file must have its
+    content; a new processing of it is made unless its latest is alike (``ProcessingKey``:
+    then ``already_stored``), whatever the rig calibration; its recorded file path is kept."""
 
 
 STILL_M = 0.05
@@ -383,10 +397,16 @@ def _check_inputs(
     register_file = None
     if request.register_path is not None:
         register_file = read_register(request.register_path, wire_types)
-    line, track = _line_and_track(
-        request, header, sorted(register_file.tracks) if register_file else []
+    given = request.register
+    tracks = (
+        sorted(register_file.tracks)
+        if register_file
+        else [(given.line, given.track)]
+        if given
+        else []
     )
-    register = register_file.track(line, track) if register_file else None
+    line, track = _line_and_track(request, header, tracks)
+    register = register_file.track(line, track) if register_file else given
     if request.wire_type is None and register is None:
         raise UserError(
             "no wire type for the residual thickness: give --wire-type NAME, or a mast "
@@ -434,17 +454,31 @@ def _processor(
 
 
 def processing_settings(
-    request: ProcessRequest, settings: Settings, filter_hz: float
+    settings: Settings, processor: str, wire_type: str | None
 ) -> dict[str, Any]:
     """What a processing is made with besides the run file, the rig calibration and the
     package (``Processing.settings``): the processor's options (``[processors.NAME]``), the
     vehicle sensors' filter and the wire type given for the whole run."""
-    options = settings.sections.get("processors", {}).get(request.processor, {})
+    options = settings.sections.get("processors", {}).get(processor, {})
     return {
         "processor_options": dict(options),
-        "vehicle_filter_hz": filter_hz,
-        "wire_type": request.wire_type,
+        "vehicle_filter_hz": vehicle_filter_hz(settings),
+        "wire_type": wire_type,
     }
+
+
+def processing_key(
+    settings: Settings, processor: str, wire_type: str | None, rig_text: str
+) -> ProcessingKey:
+    """The ``ProcessingKey`` of a processing made now with these settings, processor, run wire
+    type and rig calibration (its content)."""
+    made_with = processing_settings(settings, processor, wire_type)
+    return ProcessingKey(
+        processor,
+        PACKAGE_VERSION,
+        settings_sha256(made_with),
+        hashlib.sha256(rig_text.encode("utf-8")).hexdigest(),
+    )
 
 
 def _measure(
@@ -757,6 +791,20 @@ def _committed(engine: Engine, processing_uuid: str) -> bool:
         return found is not None
 
 
+def _run_to_process_again(session: Session, request: ProcessRequest, source_sha256: str) -> Run:
+    """The stored run ``request.into_run``; a ``UserError`` if it is gone or the run file is
+    not its content."""
+    run = session.get(Run, request.into_run)
+    if run is None:
+        raise UserError(f"run {request.into_run} is no longer stored")
+    if run.source_sha256 != source_sha256:
+        raise UserError(
+            f"{request.run_path}: its content is not that of run {run.uuid} (SHA-256 "
+            f"{source_sha256}, the run's {run.source_sha256})"
+        )
+    return run
+
+
 def _started_at(header: RunHeader) -> datetime:
     moment = datetime.fromisoformat(header.started_at.replace("Z", "+00:00"))
     return moment if moment.tzinfo is not None else moment.replace(tzinfo=UTC)
@@ -831,13 +879,21 @@ def _process_open_run(
 ) -> ProcessResult:
     inputs = _check_inputs(request, run_file.header, settings, registry)
     processor, geometry = _processor(request, run_file.header, registry, settings)
-    made_with = processing_settings(request, settings, inputs.vehicle_filter_hz)
-    rig_sha256 = hashlib.sha256(inputs.rig_text.encode("utf-8")).hexdigest()
+    made_with = processing_settings(settings, request.processor, request.wire_type)
+    alike_key = processing_key(settings, request.processor, request.wire_type, inputs.rig_text)
+    rig_sha256 = alike_key.rig_sha256
     store = open_store(settings)
     with open_database(settings, batch=True) as engine:
         with session_scope(engine, read_only=True) as session:
-            stored = find_stored_run(session, inputs.source_sha256, rig_sha256)
-            if stored is not None and not request.replace:
+            stored: Run | None
+            if request.into_run is not None:
+                stored = _run_to_process_again(session, request, inputs.source_sha256)
+                latest = stored.processing
+                alike = latest is not None and ProcessingKey.of(latest) == alike_key
+            else:
+                stored = find_stored_run(session, inputs.source_sha256, rig_sha256)
+                alike = not request.replace
+            if stored is not None and alike:
                 return ProcessResult(
                     run_id=stored.id,
                     run_uuid=stored.uuid,
@@ -923,6 +979,12 @@ def _process_open_run(
                             stored = find_stored_run(session, inputs.source_sha256, rig_sha256)
                             if stored is not None:
                                 raise _StoredMeanwhile(stored.id, stored.uuid)
+                        elif request.into_run is not None:  # the run locked till the commit
+                            stored = session.get(Run, replaced, with_for_update=True)
+                            latest = None if stored is None else stored.processing
+                            if latest is not None and ProcessingKey.of(latest) == alike_key:
+                                assert stored is not None
+                                raise _StoredMeanwhile(stored.id, stored.uuid)
                         run, processing = store_processing(
                             session,
                             line=inputs.line,
@@ -931,17 +993,21 @@ def _process_open_run(
                             geometry=geometry,
                             rig_name=request.rig_path.stem,
                             rig_text=inputs.rig_text,
-                            replacing=replaced is not None,
+                            replacing=replaced,
                             span_rows=span_rows,
                             run_values=dict(
                                 direction=header.direction,
-                                source_file=str(request.run_path.resolve()),
                                 source_sha256=inputs.source_sha256,
                                 started_at=_started_at(header),
                                 scans=header.scans,
                                 status="complete",
                                 error=None,
                                 alerts_evaluated_at=None,  # new or replaced spans: pending
+                            )
+                            | (
+                                {}  # processed again from wherever: the run's file stays
+                                if request.into_run is not None
+                                else {"source_file": str(request.run_path.resolve())}
                             ),
                             processing_values=dict(
                                 uuid=str(made),

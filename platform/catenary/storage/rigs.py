@@ -71,3 +71,16 @@ def register_rig_calibration(
             "sha256": digest,
         }
         insert_new(session, RigCalibration, [row], ["vehicle_id", "name", "version"])
+
+
+def latest_rig_calibration(session: Session, vehicle_id: int) -> RigCalibration:
+    """The vehicle's rig calibration stored last (every stored vehicle has one)."""
+    found = session.scalars(
+        select(RigCalibration)
+        .where(RigCalibration.vehicle_id == vehicle_id)
+        .order_by(RigCalibration.created_at.desc(), RigCalibration.id.desc())
+        .limit(1)
+    ).first()
+    if found is None:
+        raise UserError(f"vehicle {vehicle_id} has no rig calibration stored: give --rig FILE")
+    return found

@@ -5,10 +5,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any
 
-from sqlalchemy import select
+import numpy as np
+from sqlalchemy import func, select
 from sqlalchemy.orm import Session, selectinload
 
 from catenary.domain import OPTIONAL_MAST_NUMBERS, TrackRegister, VehicleGeometry
@@ -26,7 +29,9 @@ from catenary.storage.models import (
 from catenary.storage.rigs import register_rig_calibration
 
 __all__ = [
+    "ProcessingKey",
     "alignment_summary",
+    "count_runs",
     "find_mast",
     "find_run",
     "find_stored_run",
@@ -38,6 +43,7 @@ __all__ = [
     "settings_sha256",
     "store_processing",
     "track_masts",
+    "track_register",
 ]
 
 
@@ -107,7 +113,7 @@ def store_processing(
     geometry: VehicleGeometry,
     rig_name: str,
     rig_text: str,
-    replacing: bool,
+    replacing: int | None,
     run_values: Mapping[str, Any],
     processing_values: Mapping[str, Any],
     span_rows: Sequence[SpanMeasurement],
@@ -116,11 +122,11 @@ def store_processing(
 
     Adds what is new of its line, track and masts (``register``), its vehicle and rig
     calibration (versioned by content) and the run (``run_values``: ``Run`` columns), or,
-    ``replacing``, updates the run stored (its identity: ``source_sha256`` and the
-    calibration's content); then the processing (``processing_values``: ``Processing``
-    columns) with its span measurements, which becomes the run's latest: its earlier
-    processings stay, unseen by alerts, reports and exports. Returns both, flushed (they
-    have their ids).
+    ``replacing`` (a stored run's id), updates that run (its identity stays, whatever the
+    calibration: ``catenary reprocess`` may use a newer one); then the processing
+    (``processing_values``: ``Processing`` columns) with its span measurements, which becomes
+    the run's latest: its earlier processings stay, unseen by alerts, reports and exports.
+    Returns both, flushed (they have their ids).
 
     A new run is inserted without looking for it: if another transaction stored it
     meanwhile, the insert breaks the identity's unique key (``IntegrityError``).
@@ -129,13 +135,9 @@ def store_processing(
     if register is not None:
         track_masts(session, track_row, register)
     calibration = register_rig_calibration(session, geometry, rig_name, rig_text)
-    run = (
-        find_stored_run(session, run_values["source_sha256"], calibration.sha256)
-        if replacing
-        else None
-    )
-    if replacing and run is None:
-        raise UserError("the run to process again is no longer stored: process it anew")
+    run = None if replacing is None else session.get(Run, replacing, with_for_update=True)
+    if replacing is not None and run is None:
+        raise UserError(f"run {replacing}, to process again, is no longer stored: process it anew")
     if run is None:
         run = Run(
             uuid=run_uuid(run_values["source_sha256"], calibration.sha256),
@@ -178,6 +180,27 @@ def alignment_summary(processing: Processing) -> str:
     if processing.chainage_aligned is not None:
         return "start chainage + encoder distance (not aligned to a register)"
     return ""
+
+
+@dataclass(frozen=True)
+class ProcessingKey:
+    """What makes two processings of a run alike: the processor, catenary's version, the
+    settings' SHA-256 and the rig calibration's content SHA-256 (``catenary reprocess`` makes
+    none that the run's latest processing already is)."""
+
+    processor: str
+    package_version: str
+    settings_sha256: str
+    rig_sha256: str
+
+    @classmethod
+    def of(cls, processing: Processing) -> ProcessingKey:
+        return cls(
+            processing.processor,
+            processing.package_version,
+            processing.settings_sha256,
+            processing.rig_calibration.sha256,
+        )
 
 
 def find_stored_run(session: Session, source_sha256: str, rig_sha256: str) -> Run | None:
@@ -241,26 +264,65 @@ def pending_runs(session: Session, *, line: str | None = None) -> list[int]:
     return list(session.scalars(query.order_by(Run.id)))
 
 
-def list_runs(session: Session, *, line: str | None = None, track: str | None = None) -> list[Run]:
-    """The stored runs, oldest first (by id), of line ``line`` and track ``track`` if given;
+def _runs_of(query: Any, line: str | None, track: str | None) -> Any:
+    query = query.join(Line, Run.line_id == Line.id).outerjoin(Track, Run.track_id == Track.id)
+    if line is not None:
+        query = query.where(Line.code == line)
+    if track is not None:
+        query = query.where(Track.code == track)
+    return query
+
+
+def list_runs(
+    session: Session,
+    *,
+    line: str | None = None,
+    track: str | None = None,
+    newest_first: bool = False,
+    limit: int | None = None,
+    offset: int = 0,
+) -> list[Run]:
+    """The stored runs by id (oldest first, or ``newest_first``), of line ``line`` and track
+    ``track`` if given, at most ``limit`` of them (None: all) after the first ``offset``;
     each with its line, track, vehicle and latest processing loaded."""
     query = (
-        select(Run)
-        .join(Line, Run.line_id == Line.id)
-        .outerjoin(Track, Run.track_id == Track.id)
+        _runs_of(select(Run), line, track)
         .options(
             selectinload(Run.line),
             selectinload(Run.track),
             selectinload(Run.vehicle),
             selectinload(Run.processing),
         )
-        .order_by(Run.id)
+        .order_by(Run.id.desc() if newest_first else Run.id)
+        .limit(limit)
+        .offset(offset)
     )
-    if line is not None:
-        query = query.where(Line.code == line)
-    if track is not None:
-        query = query.where(Track.code == track)
     return list(session.scalars(query))
+
+
+def count_runs(session: Session, *, line: str | None = None, track: str | None = None) -> int:
+    """How many runs ``list_runs`` lists without ``limit``."""
+    return int(session.scalar(_runs_of(select(func.count(Run.id)), line, track)) or 0)
+
+
+def track_register(line: str, track: str, masts: Sequence[Mast]) -> TrackRegister:
+    """Stored masts as a ``TrackRegister`` (sorted by chainage), every column given."""
+    ordered = sorted(masts, key=lambda m: m.chainage_m)
+
+    def numbers(name: str) -> np.ndarray[Any, np.dtype[np.float64]]:
+        values = [getattr(m, name) for m in ordered]
+        return np.array([math.nan if v is None else v for v in values], dtype=np.float64)
+
+    return TrackRegister(
+        line=line,
+        track=track,
+        mast=tuple(m.code for m in ordered),
+        chainage_m=numbers("chainage_m"),
+        wire_type=tuple(m.wire_type for m in ordered),
+        design_stagger_mm=numbers("design_stagger_mm"),
+        anchor_section=tuple(m.anchor_section for m in ordered),
+        **{name: numbers(name) for name in OPTIONAL_MAST_NUMBERS},
+    )
 
 
 def find_track(session: Session, line: str, track: str) -> Track:

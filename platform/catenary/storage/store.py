@@ -277,6 +277,23 @@ class Store:
         check_key(key)
         return None if self._folder is None else self._folder / key
 
+    @contextmanager
+    def readable(self, key: str, scratch: Path) -> Iterator[Path]:
+        """``key`` as a local file: the store's own in a folder, else a copy in the folder
+        ``scratch`` (streamed in ``CHUNK_BYTES`` pieces), removed on exit."""
+        path = self.local_path(key)
+        if path is not None:
+            yield path
+            return
+        copy = scratch / Path(key).name
+        with self.open_input(key) as source, copy.open("wb") as target:
+            while chunk := source.read(CHUNK_BYTES):
+                target.write(chunk)
+        try:
+            yield copy
+        finally:
+            copy.unlink(missing_ok=True)
+
     def open_input(self, key: str) -> pa.NativeFile:
         """``key`` as a random-access file (``pyarrow.parquet.ParquetFile(...)`` reads it);
         errors once open are the filesystem's ``OSError``."""

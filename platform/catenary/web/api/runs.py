@@ -65,6 +65,9 @@ def errors(described: Mapping[int, str] | None = None) -> dict[int | str, dict[s
 
 router = APIRouter(tags=["runs"], responses=errors())
 
+MAX_RUNS = 1000
+"""The most runs one ``GET /runs`` answers."""
+
 
 class RunOut(BaseModel):
     """A stored run and its latest processing (``catenary runs list --format json``)."""
@@ -107,10 +110,13 @@ def runs(
     user: Annotated[Principal, requires("viewer")],
     line: Annotated[str | None, Query(max_length=64, description="Only this line's runs.")] = None,
     track: Annotated[str | None, Query(max_length=64, description="Only this track's.")] = None,
+    limit: Annotated[int, Query(ge=1, le=MAX_RUNS, description="At most this many.")] = MAX_RUNS,
+    offset: Annotated[int, Query(ge=0, description="After the first this many.")] = 0,
 ) -> list[RunOut]:
-    """The stored runs, oldest first."""
+    """The stored runs, oldest first (a page of ``limit`` from ``offset``)."""
     with session_scope(state(request).engine, read_only=True) as session:
-        return [RunOut.of(run) for run in list_runs(session, line=line, track=track)]
+        found = list_runs(session, line=line, track=track, limit=limit, offset=offset)
+        return [RunOut.of(run) for run in found]
 
 
 class ProcessingOut(BaseModel):

@@ -17,7 +17,7 @@ from starlette.responses import Response
 from catenary.maintenance.reports import report_request
 from catenary.storage.database import session_scope
 from catenary.storage.models import SpanMeasurement
-from catenary.storage.runs import alignment_summary, list_runs
+from catenary.storage.runs import alignment_summary, count_runs, list_runs
 from catenary.web.api.runs import run_of
 from catenary.web.app import state
 from catenary.web.auth import Principal, page_user, requires
@@ -52,17 +52,19 @@ def runs(
         return "/runs?" + urlencode({**chosen, "page": number})
 
     with session_scope(state(request).engine, read_only=True) as session:
-        found = list_runs(session, line=chosen.get("line"), track=chosen.get("track"))
-        found.reverse()
-        shown = found[(page - 1) * PAGE_SIZE : page * PAGE_SIZE]
+        where = {"line": chosen.get("line"), "track": chosen.get("track")}
+        total = count_runs(session, **where)
+        shown = list_runs(
+            session, **where, newest_first=True, limit=PAGE_SIZE, offset=(page - 1) * PAGE_SIZE
+        )
         context = {
             "runs": shown,
-            "total": len(found),
+            "total": total,
             "line": chosen.get("line", ""),
             "track": chosen.get("track", ""),
             "page": page,
             "previous_url": at(page - 1) if page > 1 else None,
-            "next_url": at(page + 1) if page * PAGE_SIZE < len(found) else None,
+            "next_url": at(page + 1) if page * PAGE_SIZE < total else None,
         }
         return render(request, "runs.html", context)
 
