@@ -33,6 +33,7 @@ from catenary.measurement.envelope import (
     track_view,
 )
 from catenary.positions import positions_along
+from catenary.storage.columns import fetch_columns
 from catenary.storage.database import session_scope
 from catenary.storage.models import Alert, Mast, Run, SpanMeasurement, Track
 from catenary.storage.store import Store
@@ -316,16 +317,23 @@ def _run_profile(
         except UserError as exc:  # a store that lacks the file or cannot be reached
             problem = str(exc)
         else:
-            spans = session.execute(
+            spans = fetch_columns(
+                session.connection(),
                 select(
                     SpanMeasurement.wire,
                     SpanMeasurement.wire_position,
                     SpanMeasurement.start_chainage_m,
-                ).where(SpanMeasurement.processing_id == processing.id)
-            ).all()
+                ).where(
+                    SpanMeasurement.processing_id == processing.id,
+                    SpanMeasurement.start_chainage_m <= to_m + (view.level_m or 0.0),
+                    SpanMeasurement.end_chainage_m >= from_m - (view.level_m or 0.0),
+                ),
+            )
             wires = _by_position(
                 view,
-                np.array(spans, dtype=np.float64).reshape(-1, 3),
+                np.column_stack(
+                    [spans["wire"], spans["wire_position"], spans["start_chainage_m"]]
+                ).astype(np.float64),
                 gathered(view.level_m, from_m, to_m, columns),
             )
     return RunProfileOut(
