@@ -8,8 +8,8 @@ million span measurements) in a schema of its own, evaluates its alerts (policy
 ``--sample-m`` along each wire, written with the project's ``SampleWriter`` into a folder
 store at each processing's ``samples_key``) and their envelope files (``write_envelopes``).
 
-Then it starts ``catenary serve`` (one process, as deployed) on a free port of 127.0.0.1 and,
-for each endpoint, sends 20 warm-up requests, then ``--requests`` sequential requests from one
+Then it starts ``catenary serve`` (``--workers`` processes, default 1) on a free port of
+127.0.0.1 and, for each endpoint, sends 20 warm-up requests, then ``--requests`` sequential requests from one
 client, then the same number in total from ``--clients`` concurrent clients (threads, each
 with its own connection, an equal share each), and prints p50 and p95 of each. The pages are
 read signed in through the sign-in form (a session cookie), the API with the viewer's token.
@@ -223,7 +223,7 @@ def _free_port() -> int:
 
 
 @contextmanager
-def serving(url: str, data_dir: Path) -> Iterator[str]:
+def serving(url: str, data_dir: Path, workers: int) -> Iterator[str]:
     """``catenary serve`` over ``url`` and the folder store in ``data_dir``; yields its base
     address once ``/health`` answers."""
     config = data_dir / "web-fleet.toml"
@@ -234,7 +234,7 @@ def serving(url: str, data_dir: Path) -> Iterator[str]:
     log = (data_dir / "serve.log").open("w")
     command = [
         str(Path(sys.executable).with_name("catenary")), "--config", str(config),
-        "serve", "--host", "127.0.0.1", "--port", str(port),
+        "serve", "--host", "127.0.0.1", "--port", str(port), "--workers", str(workers),
     ]  # fmt: skip
     environ = {k: v for k, v in os.environ.items() if not k.startswith("CATENARY_")}
     server = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT, env=environ)
@@ -418,6 +418,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--sample-m", type=float, default=0.05, help="Sample spacing [m].")
     parser.add_argument("--requests", type=int, default=200, help="Per endpoint and phase.")
     parser.add_argument("--clients", type=int, default=4)
+    parser.add_argument("--workers", type=int, default=1, help="catenary serve --workers.")
     parser.add_argument("--keep", action="store_true", help="Keep the schema and data folder.")
     parser.add_argument("--reuse", metavar="SCHEMA", help="A schema kept before: no build.")
     parser.add_argument("--only", help="Time only the endpoints whose label holds this.")
@@ -453,7 +454,7 @@ def main(argv: list[str] | None = None) -> None:
             f"{args.requests} shared by {args.clients} concurrent clients, after {WARM_UP} "
             "warm-up requests"
         )
-        with serving(url_text, data_dir) as base:
+        with serving(url_text, data_dir, args.workers) as base:
             measure(base, token, chosen, args.requests, args.clients)
     finally:
         engine.dispose()

@@ -53,6 +53,7 @@ def test_models_have_every_table_of_the_storage_sketch() -> None:
         "users",
         "api_tokens",
         "audit_entries",
+        "sign_in_failures",
     }
 
 

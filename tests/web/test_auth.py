@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 
 import pytest
 from sqlalchemy import Engine, select
 
 from catenary.storage.database import session_scope
-from catenary.storage.models import AuditEntry
+from catenary.storage.models import AuditEntry, SignInFailure
 from catenary.storage.users import disable_user, set_password
 from catenary.web.auth import SESSION_COOKIE, SignInLimiter
 from tests.web.conftest import PASSWORD, Web, csrf_of
@@ -95,20 +95,26 @@ def test_sign_in_is_rate_limited_per_name(web: Web) -> None:
     web.client("vera")  # another user is not blocked by pat's failures from another client
 
 
-def test_the_limiter_forgets_after_its_window_and_counts_addresses() -> None:
-    now = [0.0]
+def test_the_limiter_forgets_after_its_window_and_counts_addresses(engine: Engine) -> None:
+    start = datetime(2026, 1, 1, tzinfo=UTC)
+    now = [start]
     limiter = SignInLimiter(3, 60.0, clock=lambda: now[0])
-    for _ in range(3):
-        assert limiter.retry_after_s("Pat", "10.0.0.1") == 0
-        limiter.failed("Pat", "10.0.0.1")
-        now[0] += 10.0
-    assert limiter.retry_after_s("pat", "10.0.0.2") == pytest.approx(30.0)  # names fold case
-    assert limiter.retry_after_s("vera", "10.0.0.1") == 0
-    for name in ("a", "b", "c", "d", "e", "f", "g", "h", "i"):
-        limiter.failed(name, "10.0.0.1")
-    assert limiter.retry_after_s("vera", "10.0.0.1") > 0  # 12 failures from one address
-    now[0] = 60.0
-    assert limiter.retry_after_s("pat", "10.0.0.2") == 0  # the first failure (t=0) left
+    with session_scope(engine) as session:
+        for _ in range(3):
+            assert limiter.retry_after_s(session, "Pat", "10.0.0.1") == 0
+            limiter.failed(session, "Pat", "10.0.0.1")
+            now[0] += timedelta(seconds=10)
+        # names fold case; the first failure (t=0) leaves the window at t=60
+        assert limiter.retry_after_s(session, "pat", "10.0.0.2") == pytest.approx(30.0)
+        assert limiter.retry_after_s(session, "vera", "10.0.0.1") == 0
+        for name in ("a", "b", "c", "d", "e", "f", "g", "h", "i"):
+            limiter.failed(session, name, "10.0.0.1")
+        assert limiter.retry_after_s(session, "vera", "10.0.0.1") > 0  # 12 from one address
+        now[0] = start + timedelta(seconds=60)
+        assert limiter.retry_after_s(session, "pat", "10.0.0.2") == 0
+        limiter.failed(session, "x", "10.0.0.3")  # forgets what left the window: t=0's pair
+        kept = session.scalars(select(SignInFailure.at)).all()
+        assert len(kept) == 2 * 2 + 9 * 2 + 2 and min(kept) == start + timedelta(seconds=10)
 
 
 def test_sign_out_ends_the_session(web: Web) -> None:

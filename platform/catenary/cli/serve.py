@@ -20,23 +20,49 @@ __all__ = ["serve"]
     metavar="ADDRESSES",
     help="Reverse proxies whose X-Forwarded-Proto/-For headers are trusted (comma-separated).",
 )
+@click.option(
+    "--workers",
+    default=1,
+    show_default=True,
+    type=click.IntRange(1, 64),
+    help="Processes serving requests (about one per core).",
+)
 @database_option
 @click.pass_context
-def serve(ctx: click.Context, host: str, port: int, forwarded_allow_ips: str) -> None:
+def serve(ctx: click.Context, host: str, port: int, forwarded_allow_ips: str, workers: int) -> None:
     """Serve the planners' pages and the REST API (/api/v1) until stopped (Ctrl-C)."""
+    import os
+
     import uvicorn
 
     from catenary.web.app import create_app
 
     context = app_of(ctx)
+    # checks the settings and the database, and makes the cookie key, before any worker starts
     application = create_app(context.settings, context.registry)
-    click.echo(f"catenary serves http://{host}:{port}/ (API: /api/v1, Ctrl-C stops)")
+    options = {
+        "host": host,
+        "port": port,
+        "proxy_headers": True,
+        "forwarded_allow_ips": forwarded_allow_ips,
+        "server_header": False,
+        "log_level": "info",
+    }
+    click.echo(
+        f"catenary serves http://{host}:{port}/ (API: /api/v1; {workers} process(es); Ctrl-C stops)"
+    )
+    if workers == 1:
+        uvicorn.run(application, **options)  # type: ignore[arg-type]
+        return
+    application.state.web.engine.dispose()
+    settings = context.settings
+    os.environ["CATENARY_DATABASE_URL"] = settings.database_url
+    if settings.config_path is not None:
+        os.environ["CATENARY_CONFIG"] = str(settings.config_path.resolve())
+    os.environ["CATENARY_DATA_DIR"] = str(settings.data_dir)
     uvicorn.run(
-        application,
-        host=host,
-        port=port,
-        proxy_headers=True,
-        forwarded_allow_ips=forwarded_allow_ips,
-        server_header=False,
-        log_level="info",
+        "catenary.web.app:app_from_environment",
+        factory=True,
+        workers=workers,
+        **options,  # type: ignore[arg-type]
     )

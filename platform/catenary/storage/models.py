@@ -592,6 +592,10 @@ class SchedulerLease(Base):
 # --- users ----------------------------------------------------------------------------------
 
 
+SIGN_IN_KEY_LENGTH = 200
+"""The longest sign-in limit key (``user:`` and a name, ``address:`` and an IP address)."""
+
+
 class User(Base):
     """A person who signs in to the web service (``catenary.storage.users``).
 
@@ -634,6 +638,19 @@ class ApiToken(Base):
     revoked_at: Mapped[datetime | None]
 
     user: Mapped[User] = relationship(back_populates="tokens")
+
+
+class SignInFailure(Base):
+    """A failed sign-in to the web service, counted against ``key`` (``user:NAME`` or
+    ``address:IP``) for the sign-in limit of every process of the service
+    (``catenary.web.auth.SignInLimiter``); rows older than the limit's window are deleted."""
+
+    __tablename__ = "sign_in_failures"
+    __table_args__ = (Index(None, "key", "at"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    key: Mapped[str] = mapped_column(String(SIGN_IN_KEY_LENGTH))
+    at: Mapped[datetime] = mapped_column()
 
 
 class AuditEntry(Base):

@@ -13,7 +13,7 @@ from fastapi import FastAPI, Request
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy import Engine
 
-from catenary.config import Settings
+from catenary.config import Settings, load_settings
 from catenary.plugins import PluginRegistry
 from catenary.storage.database import make_engine, require_exists, require_migrated
 from catenary.storage.store import Store, open_store
@@ -22,7 +22,7 @@ from catenary.web.errors import install_error_handlers
 from catenary.web.headers import SecurityHeaders
 from catenary.web.settings import WebSettings, web_settings
 
-__all__ = ["WebState", "create_app", "state"]
+__all__ = ["WebState", "app_from_environment", "create_app", "state"]
 
 API_PREFIX = "/api/v1"
 
@@ -97,3 +97,10 @@ def create_app(settings: Settings, registry: PluginRegistry | None = None) -> Fa
     app.include_router(api.router, prefix=API_PREFIX)
     app.include_router(pages.router)
     return app
+
+
+def app_from_environment() -> FastAPI:
+    """``create_app`` over the settings of the environment (``CATENARY_CONFIG``,
+    ``CATENARY_DATABASE_URL``...): what each worker process of ``catenary serve --workers N``
+    runs."""
+    return create_app(load_settings())

@@ -8,9 +8,9 @@ disabled user ends every session) and the session's CSRF token, which every form
 (``checked_form``) and the API's cookie-authenticated writes send as ``X-CSRF-Token``. A
 program sends ``Authorization: Bearer <token>`` instead and needs no CSRF token.
 
-Failed sign-ins are counted per user name and per client address (``SignInLimiter``); past the
-limit, sign-in answers 429 with ``Retry-After`` until the window has passed. The count is kept
-in the process (run the service as one process: ``deploy/``).
+Failed sign-ins are counted per user name and per client address (``SignInLimiter``, in the
+database: every process of the service sees the same count); past the limit, sign-in answers
+429 with ``Retry-After`` until the window has passed.
 
 Roles are ordered: a viewer reads, a planner also changes alerts and records maintenance, an
 admin also manages users (``requires``).
@@ -20,20 +20,20 @@ from __future__ import annotations
 
 import hashlib
 import secrets
-import time
-from collections import defaultdict, deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 from fastapi import Depends, HTTPException, Request
 from itsdangerous import BadSignature, URLSafeTimedSerializer
+from sqlalchemy import delete, select
+from sqlalchemy.orm import Session
 from starlette.datastructures import FormData
 from starlette.responses import Response
 
 from catenary.storage.database import session_scope
-from catenary.storage.models import USER_ROLES, User
+from catenary.storage.models import SIGN_IN_KEY_LENGTH, USER_ROLES, SignInFailure, User
 from catenary.storage.users import authenticate_token
 
 __all__ = [
@@ -128,49 +128,55 @@ class SignInLimiter:
     and ``ADDRESS_FACTOR`` times as many per client address (colleagues behind one proxy
     share an address; a guesser trying many names is still stopped).
 
-    ``clock``: seconds, monotonic (``time.monotonic``).
+    The failures are rows of the database (``SignInFailure``), so every process of the
+    service counts the same; ``clock`` gives the time (UTC).
     """
 
     ADDRESS_FACTOR = 4
 
     def __init__(
-        self, attempts: int, window_s: float, clock: Callable[[], float] = time.monotonic
+        self,
+        attempts: int,
+        window_s: float,
+        clock: Callable[[], datetime] = lambda: datetime.now(UTC),
     ) -> None:
         self.attempts, self.window_s, self._clock = attempts, window_s, clock
-        self._failures: defaultdict[str, deque[float]] = defaultdict(deque)
 
     def _keys(self, name: str, address: str) -> tuple[tuple[str, int], ...]:
         return (
-            (f"user:{name.casefold()}", self.attempts),
-            (f"address:{address}", self.attempts * self.ADDRESS_FACTOR),
+            (f"user:{name.casefold()}"[:SIGN_IN_KEY_LENGTH], self.attempts),
+            (f"address:{address}"[:SIGN_IN_KEY_LENGTH], self.attempts * self.ADDRESS_FACTOR),
         )
 
-    def _recent(self, key: str, now: float) -> deque[float]:
-        failures = self._failures[key]
-        while failures and failures[0] <= now - self.window_s:
-            failures.popleft()
-        return failures
-
-    def retry_after_s(self, name: str, address: str) -> float:
+    def retry_after_s(self, session: Session, name: str, address: str) -> float:
         """0 if ``name`` may try to sign in from ``address``, else the seconds until it may."""
         now = self._clock()
+        since = now - timedelta(seconds=self.window_s)
         wait = 0.0
         for key, attempts in self._keys(name, address):
-            failures = self._recent(key, now)
-            if len(failures) >= attempts:
-                wait = max(wait, failures[-attempts] + self.window_s - now)
-            if not failures:
-                del self._failures[key]
+            recent = session.scalars(
+                select(SignInFailure.at)
+                .where(SignInFailure.key == key, SignInFailure.at > since)
+                .order_by(SignInFailure.at.desc())
+                .limit(attempts)
+            ).all()
+            if len(recent) >= attempts:
+                wait = max(wait, (recent[-1] - since).total_seconds())
         return wait
 
-    def failed(self, name: str, address: str) -> None:
+    def failed(self, session: Session, name: str, address: str) -> None:
+        """Count a failure against the name and the address (and forget those that left the
+        window)."""
         now = self._clock()
-        for key, _ in self._keys(name, address):
-            self._recent(key, now).append(now)
+        since = now - timedelta(seconds=self.window_s)
+        session.execute(delete(SignInFailure).where(SignInFailure.at <= since))
+        session.add_all(SignInFailure(key=key, at=now) for key, _ in self._keys(name, address))
+        session.flush()
 
-    def succeeded(self, name: str) -> None:
+    def succeeded(self, session: Session, name: str) -> None:
         """Forget the user name's failures (not the address's)."""
-        self._failures.pop(self._keys(name, "")[0][0], None)
+        key = self._keys(name, "")[0][0]
+        session.execute(delete(SignInFailure).where(SignInFailure.key == key))
 
 
 @dataclass(frozen=True)

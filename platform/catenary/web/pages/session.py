@@ -57,25 +57,30 @@ def sign_in(request: Request, form: Annotated[FormData, Depends(checked_form)]) 
     password = str(form.get("password", ""))
     target = _local(str(form.get("next", "/")))
     client = request.client.host if request.client else "unknown"
-    wait_s = shared.limiter.retry_after_s(name, client)
+    now = datetime.now(UTC)
+    with session_scope(shared.engine) as session:
+        wait_s = shared.limiter.retry_after_s(session, name, client)
+        if wait_s > 0:
+            user = None
+        else:
+            user = authenticate_password(session, name, password) if name and password else None
+            if user is None:
+                shared.limiter.failed(session, name, client)
+            else:
+                shared.limiter.succeeded(session, name)
+                details = {"from": client}
+                record_audit(
+                    session, user.name, "user.sign_in", f"user {user.name}", details, at=now
+                )
+                data = SessionData.signed_in(user)
     if wait_s > 0:
         minutes = max(1, round(wait_s / 60))
         message = f"too many failed sign-ins: try again in {minutes} minute(s)"
         response = _sign_in_page(request, target, message, 429)
         response.headers["Retry-After"] = str(int(wait_s) + 1)
         return response
-    now = datetime.now(UTC)
-    with session_scope(shared.engine) as session:
-        user = authenticate_password(session, name, password) if name and password else None
-        if user is not None:
-            record_audit(
-                session, user.name, "user.sign_in", f"user {user.name}", {"from": client}, at=now
-            )
-            data = SessionData.signed_in(user)
     if user is None:
-        shared.limiter.failed(name, client)
         return _sign_in_page(request, target, "unknown user name or wrong password", 401)
-    shared.limiter.succeeded(name)
     response = RedirectResponse(target, status_code=303)
     shared.sessions.write(response, request, data)
     return response
