@@ -9,8 +9,8 @@ million span measurements) in a schema of its own, evaluates its alerts (policy
 store at each processing's ``samples_key``) and their envelope files (``write_envelopes``).
 
 Then it starts ``catenary serve`` (``--workers`` processes, default 1) on a free port of
-127.0.0.1 and, for each endpoint, sends 20 warm-up requests, then ``--requests`` sequential requests from one
-client, then the same number in total from ``--clients`` concurrent clients (threads, each
+127.0.0.1 and, for each endpoint, sends 20 warm-up requests, then ``--requests`` sequential
+requests from one client, then the same number in total from ``--clients`` concurrent clients (threads, each
 with its own connection, an equal share each), and prints p50 and p95 of each. The pages are
 read signed in through the sign-in form (a session cookie), the API with the viewer's token.
 Without ``--keep`` the schema and the data folder are removed at the end; ``--reuse SCHEMA``
