@@ -10,11 +10,12 @@ store at each processing's ``samples_key``) and their envelope files (``write_en
 
 Then it starts ``catenary serve`` (``--workers`` processes, default 1) on a free port of
 127.0.0.1 and, for each endpoint, sends 20 warm-up requests, then ``--requests`` sequential
-requests from one client, then the same number in total from ``--clients`` concurrent clients (threads, each
-with its own connection, an equal share each), and prints p50 and p95 of each. The pages are
-read signed in through the sign-in form (a session cookie), the API with the viewer's token.
-Without ``--keep`` the schema and the data folder are removed at the end; ``--reuse SCHEMA``
-times a kept one again (migrated to this version first) without building anything.
+requests from one client, then the same number in total from ``--clients`` concurrent clients
+(threads, each with its own connection, an equal share each), and prints p50 and p95 of each.
+The pages are read signed in through the sign-in form (a session cookie), the API with the
+viewer's token. Without ``--keep`` the schema and the data folder are removed at the end;
+``--reuse SCHEMA`` times a kept one again (migrated to this version first) without building
+anything.
 
     CATENARY_TEST_DATABASE_URL=postgresql+psycopg://postgres@127.0.0.1:5432/test \\
         .venv/bin/python benchmarks/web_fleet.py [--keep]      # prints the schema it built
