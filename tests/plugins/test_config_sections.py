@@ -34,7 +34,7 @@ class CameraPlugin:
 class GreedyPlugin:
     @hookimpl
     def catenary_config_sections(self) -> list[ConfigSection]:
-        return [ConfigSection("database"), ConfigSection("scheduler"), ConfigSection("web")]
+        return [ConfigSection("database"), ConfigSection("scheduler"), ConfigSection("webcam")]
 
 
 def registry(*plugins: tuple[str, object]) -> PluginRegistry:
@@ -83,7 +83,7 @@ def test_declared_and_core_sections_are_accepted(tmp_path: Path) -> None:
 
 def test_a_plugin_declaring_a_core_section_is_a_load_error() -> None:
     found = registry(("greedy", GreedyPlugin()))
-    assert list(found.config_sections()) == ["web"]
+    assert list(found.config_sections()) == ["webcam"]
     messages = [str(error) for error in found.errors]
     assert messages == [
         "plugin 'greedy' (load): config section [database] is the core's",
