@@ -685,7 +685,7 @@ def _put_evidence(
     count = 0
     for where, chosen in points.items():
         crops = cut_evidence(
-            lambda start, stop: next(run_file.blocks(stop - start, start=start, stop=stop)),
+            run_file.image_block,
             header.scans,
             abs(last_position_m) / max(header.scans - 1, 1),
             chosen,

@@ -84,7 +84,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from catenary.arrays import FloatArray, UInt8Array, UInt16Array
-from catenary.domain import DEFAULT_BLOCK_SCANS, CameraLines, RunHeader, ScanBlock
+from catenary.domain import DEFAULT_BLOCK_SCANS, CameraLines, RunHeader, ScanBlock, VehicleSamples
 from catenary.errors import FormatError, UserError
 from catenary.measurement.sensors import SensorSmoother, SensorStream
 from catenary.text import control_character_problem
@@ -1128,6 +1128,23 @@ class RunFile:
                 cameras=self.camera_lines(first, last) if lines else {},
                 vehicle=vehicle.at(time_s),
             )
+
+    def image_block(self, first: int, last: int) -> ScanBlock:
+        """Scans ``first:last`` with their positions, times and camera lines, the vehicle
+        sensors not read (zeros, every scan a fault): for what needs the images alone (image
+        evidence), at a cost that does not grow with ``first`` as :meth:`blocks`' does (its
+        sensors are read from the run's start)."""
+        position_m = _read_rows(self._series["position_m"], first, last, np.float64)
+        time_s = _read_rows(self._series["time_s"], first, last, np.float64)
+        n = last - first
+        unread = VehicleSamples(
+            time_s=time_s.copy(),
+            left_mm=np.zeros(n),
+            right_mm=np.zeros(n),
+            lateral_mm=np.zeros(n),
+            fault=np.ones(n, dtype=bool),
+        )
+        return ScanBlock(first, position_m, time_s, self.camera_lines(first, last), unread)
 
     def camera_lines(self, first: int, last: int) -> dict[str, CameraLines]:
         """Every camera's lines of scans ``first:last``, fresh arrays ``[last - first, W]``."""
