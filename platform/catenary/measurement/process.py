@@ -13,7 +13,12 @@
    ``linescan-stereo`` one unless told otherwise) and the measurement chain
    (:mod:`catenary.measurement.chain`: vehicle compensation, stagger-angle correction) into an
    intermediate Parquet file; the stagger's turning points (the registration points) are
-   found on the way (:mod:`catenary.measurement.chainage`).
+   found on the way (:mod:`catenary.measurement.chainage`). With ``workers`` above 1 and a
+   processor that is a ``StagedProcessor``, the stage of successive blocks runs in worker
+   processes (:mod:`catenary.measurement.parallel`) and the rest in order here; the results
+   are the same. The run file is hashed in a thread from the start; the check that the run
+   is not stored already (step 1) waits for it before the first block with one worker, and
+   is made beside the workers as soon as it is known otherwise.
 3. **Align** the encoder's positions to chainage: to the mast register's masts through the
    registration points (fitting the encoder's scale error and the start chainage's error),
    or ``start + position`` without a register.
