@@ -373,15 +373,15 @@ def test_a_failure_half_way_leaves_no_run_and_no_file(
     from catenary_linescan.processor import stereo
 
     calls = []
-    process_block = stereo.LineScanProcessor.process
+    process_block = stereo.LineScanProcessor.process_staged  # in this process, any --workers
 
-    def failing(self, block):
+    def failing(self, block, staged):
         calls.append(block.first_scan)
         if len(calls) == 3:
             raise OSError(5, "Input/output error")
-        return process_block(self, block)
+        return process_block(self, block, staged)
 
-    monkeypatch.setattr(stereo.LineScanProcessor, "process", failing)
+    monkeypatch.setattr(stereo.LineScanProcessor, "process_staged", failing)
     result = process(simulated, database)
     assert "Input/output error" in one_line_error(result)
     assert stored(database) == (0, 0)

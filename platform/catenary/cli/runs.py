@@ -56,6 +56,12 @@ __all__ = ["compare", "export", "process", "runs"]
     is_flag=True,
     help="Process a run already stored again: a new processing, which becomes the one seen.",
 )
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1),
+    help="Processes staging blocks at once (default: this machine's cores; 1: all in this "
+    "process). The results are the same whatever the number.",
+)
 @database_option
 @click.pass_context
 def process(
@@ -68,10 +74,12 @@ def process(
     track: str | None,
     processor: str,
     replace: bool,
+    workers: int | None,
 ) -> None:
     """Process a recorded run into per-span wear in the database."""
     from catenary.maintenance.alerts import evaluate_stored_run, run_alerting, run_alerts_lines
     from catenary.maintenance.notifications import notification_config
+    from catenary.measurement.parallel import default_workers
     from catenary.measurement.process import ProcessRequest, StoredThenInterrupted, process_run
     from catenary.storage.database import open_database
 
@@ -86,6 +94,7 @@ def process(
         track=track,
         processor=processor,
         replace=replace,
+        workers=default_workers() if workers is None else workers,
     )
     alerting = run_alerting(settings, app.registry)
     if alerting.policy is not None:  # its alerts queue notifications: a wrong channel, now

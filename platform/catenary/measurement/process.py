@@ -13,7 +13,12 @@
    ``linescan-stereo`` one unless told otherwise) and the measurement chain
    (:mod:`catenary.measurement.chain`: vehicle compensation, stagger-angle correction) into an
    intermediate Parquet file; the stagger's turning points (the registration points) are
-   found on the way (:mod:`catenary.measurement.chainage`).
+   found on the way (:mod:`catenary.measurement.chainage`). With ``workers`` above 1 and a
+   processor that is a ``StagedProcessor``, the stage of successive blocks runs in worker
+   processes (:mod:`catenary.measurement.parallel`) and the rest in order here; the results
+   are the same. The run file is hashed in a thread from the start; the check that the run
+   is not stored already (step 1) waits for it before the first block with one worker, and
+   is made beside the workers as soon as it is known otherwise.
 3. **Align** the encoder's positions to chainage: to the mast register's masts through the
    registration points (fitting the encoder's scale error and the start chainage's error),
    or ``start + position`` without a register.
@@ -63,9 +68,11 @@ import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator, Mapping
-from contextlib import AbstractContextManager, contextmanager, suppress
+from concurrent.futures import Future, ThreadPoolExecutor
+from contextlib import AbstractContextManager, ExitStack, closing, contextmanager, suppress
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from functools import partial
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -83,6 +90,7 @@ from catenary.domain import (
     NAME_LENGTH,
     PATH_LENGTH,
     RunHeader,
+    ScanBlock,
     TrackRegister,
     VehicleGeometry,
     WireObservations,
@@ -102,12 +110,19 @@ from catenary.measurement.evidence import (
     png_bytes,
 )
 from catenary.measurement.masts import read_register
+from catenary.measurement.parallel import staged_blocks
 from catenary.measurement.runfile import RunFile, open_run
 from catenary.measurement.samples import SampleWriter, read_sample_batches, trusted
 from catenary.measurement.sensors import DEFAULT_FILTER_HZ, SensorSmoother
 from catenary.measurement.spans import SpanAccumulator, SpanLayout, SpanStatistics
 from catenary.measurement.vehicle import load_vehicle_geometry
-from catenary.plugins import BlockProcessor, ImageLocator, PluginRegistry, RunChecker
+from catenary.plugins import (
+    BlockProcessor,
+    ImageLocator,
+    PluginRegistry,
+    RunChecker,
+    StagedProcessor,
+)
 from catenary.positions import wire_positions
 from catenary.storage.database import open_database, session_scope
 from catenary.storage.models import Processing, Run, SpanMeasurement, run_uuid
@@ -182,6 +197,9 @@ class ProcessRequest:
     register: TrackRegister | None = None
     """The register of the run's track already read (the stored one), instead of
     ``register_path``."""
+    workers: int = 1
+    """Processes staging blocks at once (``catenary.measurement.parallel``) when the processor
+    is a ``StagedProcessor``; 1: every block in this process."""
     into_run: int | None = None
     """The stored run to process again (``catenary reprocess``): the run file must have its
     content; a new processing of it is made unless its latest is alike (``ProcessingKey``:
@@ -328,14 +346,15 @@ class _Inputs:
     register: TrackRegister | None
     wire_types: dict[str, WireType]
     rig_text: str
-    source_sha256: str
 
 
-def file_sha256(path: Path) -> str:
-    """SHA-256 of a file's content, read in 8 MiB pieces."""
+def file_sha256(path: Path, stop: threading.Event | None = None) -> str:
+    """SHA-256 of a file's content, read in 8 MiB pieces ("" once ``stop`` is set)."""
     digest = hashlib.sha256()
     with path.open("rb") as handle:
         while piece := handle.read(8 << 20):
+            if stop is not None and stop.is_set():
+                return ""
             digest.update(piece)
     return digest.hexdigest()
 
@@ -426,7 +445,6 @@ def _check_inputs(
         register=register,
         wire_types=wire_types,
         rig_text=rig_text,
-        source_sha256=file_sha256(request.run_path),
     )
 
 
@@ -489,10 +507,13 @@ def _measure(
     writer: SampleWriter,
     progress: Callable[[int], None],
     filter_hz: float,
+    workers: int,
 ) -> tuple[TurningPointFinder, float, SensorSmoother]:
     """Pass 1: every block, its vehicle sensors smoothed below ``filter_hz``, through the
-    processor (each call inside ``boundary``) and the chain; returns the turning points found,
-    the run's last encoder position [m] and the sensors' smoother (their noise)."""
+    processor (each call inside ``boundary``; the stage of ``workers`` blocks at once in
+    worker processes unless 1: ``_workers``) and the chain; returns the turning points found,
+    the run's last encoder position [m] and the sensors' smoother (their noise).
+    ``progress`` is called after each block."""
     finder = TurningPointFinder()
     last_position = 0.0
 
@@ -509,13 +530,47 @@ def _measure(
         return value
 
     smoother = SensorSmoother(filter_hz, run.vehicle_interval_s)
-    for block in run.blocks(BLOCK_SCANS, smoother=smoother):
-        keep(chain.push(block, observations(processor.process, block)))
-        if block.scans:
-            last_position = float(block.position_m[-1])
-        progress(block.scans)
+    with ExitStack() as stack:
+        processed: Iterator[tuple[ScanBlock, Callable[[], WireObservations]]]
+        if workers == 1:
+            processed = (
+                (block, partial(processor.process, block))
+                for block in run.blocks(BLOCK_SCANS, smoother=smoother)
+            )
+        else:
+            assert isinstance(processor, StagedProcessor)
+            pool = staged_blocks(
+                run.path,
+                processor.stage,
+                run.blocks(BLOCK_SCANS, smoother=smoother, lines=False),
+                workers,
+            )
+            processed = (
+                (block, partial(_process_staged, processor, block, staged))
+                for block, staged in stack.enter_context(closing(pool))
+            )
+        for block, process in processed:
+            keep(chain.push(block, observations(process)))
+            if block.scans:
+                last_position = float(block.position_m[-1])
+            progress(block.scans)
     keep(chain.finish(observations(processor.finish)))
     return finder, last_position, smoother
+
+
+def _process_staged(
+    processor: StagedProcessor, block: ScanBlock, staged: Future[Any]
+) -> WireObservations:
+    """``process_staged`` of ``block`` once its stage is done (its error raised here)."""
+    return processor.process_staged(block, staged.result())
+
+
+def _workers(request: ProcessRequest, processor: BlockProcessor, scans: int) -> int:
+    """Worker processes for the run: ``request.workers``, no more than its blocks, and 1
+    (in this process) for a processor that is not a ``StagedProcessor``."""
+    if not isinstance(processor, StagedProcessor):
+        return 1
+    return max(1, min(request.workers, math.ceil(scans / BLOCK_SCANS)))
 
 
 def _align(
@@ -635,7 +690,7 @@ def _put_evidence(
     count = 0
     for where, chosen in points.items():
         crops = cut_evidence(
-            lambda start, stop: next(run_file.blocks(stop - start, start=start, stop=stop)),
+            run_file.image_block,
             header.scans,
             abs(last_position_m) / max(header.scans - 1, 1),
             chosen,
@@ -864,13 +919,32 @@ def process_run(
     """Process one run file into the database (module docstring); see ``ProcessResult``.
 
     The run file is opened once (its warnings, e.g. an interrupted recording, are given once)
-    and stays open until the run is stored."""
-    with open_run(request.run_path) as run_file:
-        return _process_open_run(run_file, request, settings, registry, progress, on_start)
+    and stays open until the run is stored. Its SHA-256 is computed in a thread from the
+    start: with ``request.workers`` 1 the run is checked against the stored ones once it is
+    known, before the first block; else beside the workers, as soon as it is known (a run
+    found stored then stops being measured)."""
+    stop = threading.Event()
+    with open_run(request.run_path) as run_file, ThreadPoolExecutor(1) as hasher:
+        try:
+            hashing = hasher.submit(file_sha256, request.run_path, stop)
+            return _process_open_run(
+                run_file, hashing, request, settings, registry, progress, on_start
+            )
+        finally:
+            stop.set()  # a hash still running ends with its current piece
+
+
+class _FoundStored(Exception):
+    """The run is stored already, alike (``result``): nothing to do."""
+
+    def __init__(self, result: ProcessResult) -> None:
+        super().__init__(result.run_id)
+        self.result = result
 
 
 def _process_open_run(
     run_file: RunFile,
+    hashing: Future[str],
     request: ProcessRequest,
     settings: Settings,
     registry: PluginRegistry,
@@ -879,29 +953,48 @@ def _process_open_run(
 ) -> ProcessResult:
     inputs = _check_inputs(request, run_file.header, settings, registry)
     processor, geometry = _processor(request, run_file.header, registry, settings)
+    workers = _workers(request, processor, inputs.header.scans)
     made_with = processing_settings(settings, request.processor, request.wire_type)
     alike_key = processing_key(settings, request.processor, request.wire_type, inputs.rig_text)
     rig_sha256 = alike_key.rig_sha256
     store = open_store(settings)
     with open_database(settings, batch=True) as engine:
-        with session_scope(engine, read_only=True) as session:
-            stored: Run | None
-            if request.into_run is not None:
-                stored = _run_to_process_again(session, request, inputs.source_sha256)
-                latest = stored.processing
-                alike = latest is not None and ProcessingKey.of(latest) == alike_key
-            else:
-                stored = find_stored_run(session, inputs.source_sha256, rig_sha256)
-                alike = not request.replace
-            if stored is not None and alike:
-                return ProcessResult(
-                    run_id=stored.id,
-                    run_uuid=stored.uuid,
-                    already_stored=True,
-                    alerts_pending=stored.alerts_evaluated_at is None,
-                    header=inputs.header,
-                )
-            replaced = None if stored is None else stored.id
+
+        def replacing() -> int | None:
+            """The stored run this processing replaces (None: a new run), once the run file
+            is hashed; ``_FoundStored`` if it is stored alike."""
+            with session_scope(engine, read_only=True) as session:
+                stored: Run | None
+                if request.into_run is not None:
+                    stored = _run_to_process_again(session, request, hashing.result())
+                    latest = stored.processing
+                    alike = latest is not None and ProcessingKey.of(latest) == alike_key
+                else:
+                    stored = find_stored_run(session, hashing.result(), rig_sha256)
+                    alike = not request.replace
+                if stored is not None and alike:
+                    raise _FoundStored(
+                        ProcessResult(
+                            run_id=stored.id,
+                            run_uuid=stored.uuid,
+                            already_stored=True,
+                            alerts_pending=stored.alerts_evaluated_at is None,
+                            header=inputs.header,
+                        )
+                    )
+                return None if stored is None else stored.id
+
+        checked: list[int | None] = []  # replacing(), once known
+        if workers == 1:
+            try:
+                checked.append(replacing())
+            except _FoundStored as found:
+                return found.result
+
+        def advanced(scans: int) -> None:
+            progress(scans)
+            if not checked and hashing.done():
+                checked.append(replacing())
 
         on_start(inputs.header)
         folder = settings.data_dir / SAMPLES_DIR
@@ -915,10 +1008,7 @@ def _process_open_run(
         made = uuid.uuid4()
         token = made.hex + database_fingerprint(engine)
         measured = folder / _scratch_name("pass1", token)
-        partial = folder / _scratch_name("samples", token)
-        key = samples_key(
-            inputs.line, inputs.track, run_uuid(inputs.source_sha256, rig_sha256), str(made)
-        )
+        unstored = folder / _scratch_name("samples", token)
         placed: str | None = None  # the samples file in the store, until the commit
         kept: str | None = None
         try:
@@ -929,12 +1019,20 @@ def _process_open_run(
                     lambda: registry.boundary("processor", request.processor),
                     MeasurementChain(geometry),
                     writer,
-                    progress,
+                    advanced,
                     inputs.vehicle_filter_hz,
+                    workers,
                 )
+            if not checked:
+                checked.append(replacing())
+            replaced = checked[0]
+            source_sha256 = hashing.result()
+            key = samples_key(
+                inputs.line, inputs.track, run_uuid(source_sha256, rig_sha256), str(made)
+            )
             alignment, layout, ends = _align(inputs, finder, last_position)
             crops = {point: SpanMinima() for point in POINTS}
-            with SampleWriter(partial) as writer:
+            with SampleWriter(unstored) as writer:
                 spans, outside, faulty, uncertain = _finish(
                     measured,
                     writer,
@@ -967,7 +1065,7 @@ def _process_open_run(
                 store,
                 str(made),
             )
-            levels = envelope_bytes(partial)
+            levels = envelope_bytes(unstored)
             header = inputs.header
             try:
                 with _interruptions_held():
@@ -976,7 +1074,7 @@ def _process_open_run(
                         # holds the write lock, so a concurrent process of the same run waits
                         # for it here and then finds the run stored
                         if replaced is None:
-                            stored = find_stored_run(session, inputs.source_sha256, rig_sha256)
+                            stored = find_stored_run(session, source_sha256, rig_sha256)
                             if stored is not None:
                                 raise _StoredMeanwhile(stored.id, stored.uuid)
                         elif request.into_run is not None:  # the run locked till the commit
@@ -997,7 +1095,7 @@ def _process_open_run(
                             span_rows=span_rows,
                             run_values=dict(
                                 direction=header.direction,
-                                source_sha256=inputs.source_sha256,
+                                source_sha256=source_sha256,
                                 started_at=_started_at(header),
                                 scans=header.scans,
                                 status="complete",
@@ -1032,7 +1130,7 @@ def _process_open_run(
                         # before or after it is told apart and tidied
                         # (remove_abandoned_scratch)
                         placed = key
-                        written = store.put_file(partial, key)
+                        written = store.put_file(unstored, key)
                         processing.samples_key = written.key
                         processing.samples_size_bytes = written.size_bytes
                         processing.samples_sha256 = written.sha256
@@ -1044,13 +1142,13 @@ def _process_open_run(
                 # PostgreSQL: a concurrent process stored the same run first; this insert
                 # waited for its commit and then broke a unique key
                 with session_scope(engine, read_only=True) as session:
-                    stored = find_stored_run(session, inputs.source_sha256, rig_sha256)
+                    stored = find_stored_run(session, source_sha256, rig_sha256)
                 if stored is None or replaced is not None:
                     raise
                 raise _StoredMeanwhile(stored.id, stored.uuid) from None
-            partial.unlink()
+            unstored.unlink()
         except BaseException as exc:
-            for path in (measured, partial):
+            for path in (measured, unstored):
                 path.unlink(missing_ok=True)
             with suppress(StoreError):  # unreachable: the next process removes them
                 if placed is not None:
@@ -1060,6 +1158,8 @@ def _process_open_run(
                         store.delete(key)
                 if placed is not None:  # last: the folder it would be in may be the fault
                     store.delete(envelope_key(placed))
+            if isinstance(exc, _FoundStored):
+                return exc.result
             if isinstance(exc, _StoredMeanwhile):
                 return ProcessResult(
                     run_id=exc.run_id,

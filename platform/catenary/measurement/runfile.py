@@ -84,7 +84,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from catenary.arrays import FloatArray, UInt8Array, UInt16Array
-from catenary.domain import DEFAULT_BLOCK_SCANS, CameraLines, RunHeader, ScanBlock
+from catenary.domain import DEFAULT_BLOCK_SCANS, CameraLines, RunHeader, ScanBlock, VehicleSamples
 from catenary.errors import FormatError, UserError
 from catenary.measurement.sensors import SensorSmoother, SensorStream
 from catenary.text import control_character_problem
@@ -1079,11 +1079,13 @@ class RunFile:
         stop: int | None = None,
         max_gap_factor: float = DEFAULT_MAX_GAP_FACTOR,
         smoother: SensorSmoother | None = None,
+        lines: bool = True,
     ) -> Iterator[ScanBlock]:
         """Stream scans ``start:stop`` (default: all usable) in blocks of ``block_scans``.
 
         Each :class:`ScanBlock` holds fresh arrays (``position_m``, ``time_s`` ``[n]``, each
-        camera's lines ``[n, W]``) and the vehicle sensors interpolated to the scan times
+        camera's lines ``[n, W]``: none without ``lines``, for :meth:`camera_lines` to read
+        elsewhere) and the vehicle sensors interpolated to the scan times
         (each ``[n]``, ``fault`` as in the module docstring, with a gap meaning more than
         ``max_gap_factor`` median sample intervals), smoothed by ``smoother`` if given (a new
         one per call, made for :attr:`vehicle_interval_s`; it holds the noise estimate once
@@ -1101,7 +1103,7 @@ class RunFile:
             raise ValueError(f"max_gap_factor must be positive, got {max_gap_factor!r}")
         interval = self.vehicle_interval_s
         max_gap_s = math.inf if interval is None else max_gap_factor * interval
-        return self._blocks(int(block_scans), int(start), int(stop), max_gap_s, smoother)
+        return self._blocks(int(block_scans), int(start), int(stop), max_gap_s, smoother, lines)
 
     def _blocks(
         self,
@@ -1110,31 +1112,54 @@ class RunFile:
         stop: int,
         max_gap_s: float,
         smoother: SensorSmoother | None,
+        lines: bool,
     ) -> Iterator[ScanBlock]:
         vehicle = SensorStream(
             self._read_vehicle, self.vehicle_samples, max_gap_s, SERIES_CHUNK, smoother
         )
-        bit_depths = self.header.camera_bit_depth
-        offsets = self.header.camera_offset_px
         for first in range(start, stop, block_scans):
             last = min(first + block_scans, stop)
             position_m = _read_rows(self._series["position_m"], first, last, np.float64)
             time_s = _read_rows(self._series["time_s"], first, last, np.float64)
-            cameras = {
-                name: CameraLines(
-                    lines=_read_rows(ds, first, last, np.dtype(f"u{ds.dtype.itemsize}")),
-                    bit_depth=bit_depths[name],
-                    offset_px=offsets.get(name, 0),
-                )
-                for name, ds in self._lines.items()
-            }
             yield ScanBlock(
                 first_scan=first,
                 position_m=position_m,
                 time_s=time_s,
-                cameras=cameras,
+                cameras=self.camera_lines(first, last) if lines else {},
                 vehicle=vehicle.at(time_s),
             )
+
+    def image_block(self, first: int, last: int) -> ScanBlock:
+        """Scans ``first:last`` with their positions, times and camera lines, the vehicle
+        sensors not read (zeros, every scan a fault): for what needs the images alone (image
+        evidence), at a cost that does not grow with ``first`` as :meth:`blocks`' does (its
+        sensors are read from the run's start)."""
+        position_m = _read_rows(self._series["position_m"], first, last, np.float64)
+        time_s = _read_rows(self._series["time_s"], first, last, np.float64)
+        n = last - first
+        unread = VehicleSamples(
+            time_s=time_s.copy(),
+            left_mm=np.zeros(n),
+            right_mm=np.zeros(n),
+            lateral_mm=np.zeros(n),
+            fault=np.ones(n, dtype=bool),
+        )
+        return ScanBlock(first, position_m, time_s, self.camera_lines(first, last), unread)
+
+    def camera_lines(self, first: int, last: int) -> dict[str, CameraLines]:
+        """Every camera's lines of scans ``first:last``, fresh arrays ``[last - first, W]``."""
+        if not self._file:
+            raise ValueError(f"{self.path}: run file is closed")
+        bit_depths = self.header.camera_bit_depth
+        offsets = self.header.camera_offset_px
+        return {
+            name: CameraLines(
+                lines=_read_rows(ds, first, last, np.dtype(f"u{ds.dtype.itemsize}")),
+                bit_depth=bit_depths[name],
+                offset_px=offsets.get(name, 0),
+            )
+            for name, ds in self._lines.items()
+        }
 
     def _read_vehicle(self, first: int, last: int) -> tuple[FloatArray, FloatArray]:
         """Vehicle samples ``first:last``: ``time_s [k]`` and the three sensors ``[3, k]``."""

@@ -6,7 +6,8 @@
   ``Source``, ``VehicleSource``, ``Processor``, ``Reporter``, ``Notifier``, ``Command``,
   ``ConfigSection``, and
   the protocols their callables return (``ScanStream``, ``VehicleStream``,
-  ``BlockProcessor``);
+  ``BlockProcessor``, and the optional ``RunChecker``, ``ImageLocator`` and
+  ``StagedProcessor``);
 - the payloads the core hands over: ``ReportRequest`` (reporters), ``AlertRecord``
   (notifiers, ``catenary_alert_raised``), and the domain types of ``catenary.domain``;
 - ``CommandContext`` and ``pass_command_context`` (``context``): what a plugin's command
@@ -34,6 +35,7 @@ from catenary.plugins.types import (
     RunChecker,
     ScanStream,
     Source,
+    StagedProcessor,
     VehicleSource,
     VehicleStream,
 )
@@ -57,6 +59,7 @@ __all__ = [
     "RunChecker",
     "ScanStream",
     "Source",
+    "StagedProcessor",
     "VehicleSource",
     "VehicleStream",
     "WireType",

@@ -42,6 +42,7 @@ __all__ = [
     "RunChecker",
     "ScanStream",
     "Source",
+    "StagedProcessor",
     "VehicleSource",
     "VehicleStream",
 ]
@@ -84,6 +85,24 @@ class BlockProcessor(Protocol):
     def process(self, block: ScanBlock) -> WireObservations: ...
 
     def finish(self) -> WireObservations: ...
+
+
+@runtime_checkable
+class StagedProcessor(Protocol):
+    """A ``BlockProcessor`` split into a stateless stage and a stateful rest (optional), so
+    that the core may run the stage of several blocks at once in worker processes
+    (``catenary process --workers N``).
+
+    ``stage`` is a picklable callable, ``stage(block)``, whose result depends on the block
+    alone and is picklable (it is sent to each worker once and called there, for any block, in
+    any order); ``process_staged(block, stage(block))`` is then called in run order in the
+    core's process and is exactly ``process(block)``. The results must not depend on where
+    the stage ran."""
+
+    @property
+    def stage(self) -> Callable[[ScanBlock], Any]: ...
+
+    def process_staged(self, block: ScanBlock, staged: Any) -> WireObservations: ...
 
 
 @runtime_checkable

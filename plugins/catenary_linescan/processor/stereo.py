@@ -17,7 +17,10 @@ tracked wire was seen, with its worn face, by two cameras only. ``wear_width_mm`
 face's width in the scanning plane from the cameras that agree on it (0.0: no face seen, a
 new wire or one narrower than the features resolve; NaN: faces seen but not agreed on).
 Tracking holds back the points of the last metres until they are decided:
-:meth:`LineScanProcessor.finish` returns them at the end of the run.
+:meth:`LineScanProcessor.finish` returns them at the end of the run. Steps 1 and 2 depend on
+the block alone: they are the processor's ``stage`` (:class:`LineScanStage`, picklable), which
+``catenary process --workers N`` runs for several blocks at once in worker processes, and step
+3 its ``process_staged``, in run order.
 
 ``create(rig_path, settings)`` is the factory of the ``Processor`` registration. Settings
 (all optional):
@@ -53,10 +56,12 @@ from typing import Any
 
 import numpy as np
 
-from catenary.arrays import FloatArray
+from catenary.arrays import BoolArray, FloatArray, IntArray
 from catenary.domain import RunHeader, ScanBlock, WireObservations
 from catenary.errors import UserError
 from catenary.measurement.vehicle import roll_rad
+from catenary_linescan.calibration import ResolutionTable
+from catenary_linescan.camera import LineScanCamera
 from catenary_linescan.rig import Rig, read_rig
 
 from .features import FeatureConfig, extract_features
@@ -72,7 +77,15 @@ from .matching import (
 )
 from .tracking import TrackedPoints, TrackingConfig, WireTracker
 
-__all__ = ["LineScanProcessor", "ProcessorConfig", "create", "empty_observations"]
+__all__ = [
+    "LineScanProcessor",
+    "LineScanStage",
+    "ProcessorConfig",
+    "StagedBlock",
+    "create",
+    "empty_observations",
+    "fit_problem",
+]
 
 log = logging.getLogger(__name__)
 
@@ -217,6 +230,20 @@ class LineScanProcessor:
         self.matching = replace(
             self.config.matching, max_wire_width_mm=self.config.wire_width_mm[1]
         )
+        self._stage = LineScanStage(
+            rig_name=rig.vehicle.name,
+            names=tuple(self.names),
+            cameras=tuple(self.cameras),
+            tables=tuple(self.tables),
+            pixels=tuple(camera.pixels for camera in self.cameras),
+            sigma_px=self.sigma_px,
+            features=self.features,
+            matching=self.matching,
+            baseline_mm=rig.vehicle.sensor_baseline_mm,
+            wire_radius_mm=self.config.wire_radius_mm,
+            width_tolerance_mm=self.config.width_tolerance_mm,
+            max_width_mm=self.config.wire_width_mm[1],
+        )
         self.tracker = WireTracker(self.config.tracking)
         self._next_scan = 0
         self._ratio_sum = np.zeros(len(self.names))
@@ -238,7 +265,7 @@ class LineScanProcessor:
 
     def check_run(self, header: RunHeader) -> None:
         """Refuse a run that does not fit the rig, before any scan (``RunChecker``): a rig
-        camera it lacks, or lines that are not the camera's sensor (``_fit_problem``). A
+        camera it lacks, or lines that are not the camera's sensor (``fit_problem``). A
         camera of the run that the rig lacks (an overview camera) is named in one warning
         and ignored."""
         missing = [name for name in self.names if name not in header.camera_pixels]
@@ -248,8 +275,12 @@ class LineScanProcessor:
                 f"(cameras: {', '.join(header.camera_pixels)})"
             )
         for name in self.names:
-            problem = self._fit_problem(
-                name, header.camera_pixels[name], header.camera_offset_px.get(name)
+            problem = fit_problem(
+                self.rig.vehicle.name,
+                name,
+                self.rig.cameras[name].camera.pixels,
+                header.camera_pixels[name],
+                header.camera_offset_px.get(name),
             )
             if problem is not None:
                 raise UserError(problem)
@@ -260,25 +291,6 @@ class LineScanProcessor:
                 self.rig.vehicle.name,
             )
 
-    def _fit_problem(self, name: str, width: int, offset_px: int | None) -> str | None:
-        """Why camera ``name``'s lines of ``width`` pixels, starting at sensor pixel
-        ``offset_px`` (None: not declared, the lines must hold the whole sensor), do not fit
-        its calibrated ``pixels``; None when they fit."""
-        pixels = self.rig.cameras[name].camera.pixels
-        if offset_px is None:
-            if width == pixels:
-                return None
-            return (
-                f"camera {name!r}: lines of {width} pixels, but rig {self.rig.vehicle.name!r} "
-                f"calibrated it with {pixels} (a region of interest declares offset_px)"
-            )
-        if offset_px + width <= pixels:
-            return None
-        return (
-            f"camera {name!r}: offset_px {offset_px} + {width} pixels = {offset_px + width}, "
-            f"beyond the {pixels} pixels rig {self.rig.vehicle.name!r} calibrated"
-        )
-
     def image_columns(self, x_roof_mm: FloatArray, z_roof_mm: FloatArray) -> dict[str, FloatArray]:
         """Each camera's sensor pixel of roof-frame points (``ImageLocator``), ``(k,)``;
         NaN where the camera cannot see one."""
@@ -288,68 +300,38 @@ class LineScanProcessor:
             columns[name] = np.where(camera.in_view(x_roof_mm, z_roof_mm), u, np.nan)
         return columns
 
+    @property
+    def stage(self) -> LineScanStage:
+        """The stateless part of :meth:`process` (``StagedProcessor``): picklable."""
+        return self._stage
+
     def process(self, block: ScanBlock) -> WireObservations:
         """Process one block of scans; return the observations now decided."""
-        missing = [name for name in self.names if name not in block.cameras]
-        if missing:
-            raise UserError(
-                f"scan block at scan {block.first_scan} has no camera {missing[0]!r} "
-                f"of rig {self.rig.vehicle.name!r} (cameras: {', '.join(block.cameras)})"
-            )
-        for name in self.names:  # within the sensor (the whole-sensor check: check_run)
-            lines = block.cameras[name]
-            problem = self._fit_problem(name, lines.lines.shape[1], lines.offset_px)
-            if problem is not None:
-                raise UserError(problem)
+        return self.process_staged(block, self._stage(block))
+
+    def process_staged(self, block: ScanBlock, staged: StagedBlock | None) -> WireObservations:
+        """The stateful rest of :meth:`process` (``StagedProcessor``), in run order: the
+        model-versus-table check and tracking of ``staged = stage(block)``."""
         if block.first_scan < self._next_scan:
             raise ValueError(
                 f"block at scan {block.first_scan} after scans up to {self._next_scan - 1}"
             )
         n = block.scans
-        if n == 0:
+        if staged is None:
             return empty_observations()
         self._next_scan = block.first_scan + n
-        features = []
-        for name in self.names:
-            lines = block.cameras[name]
-            if lines.lines.shape[0] != n:
-                raise UserError(
-                    f"camera {name!r} has {lines.lines.shape[0]} lines in a block of {n} scans"
-                )
-            features.append(extract_features(lines.lines, lines.bit_depth, config=self.features))
-        offsets = [block.cameras[name].offset_px for name in self.names]
-        candidates = pad_candidates(features, n, self.matching.max_candidates, offsets)
-        matches = match(self.cameras, candidates, self.sigma_px, self.matching)
-        vehicle = block.vehicle
-        roll = roll_rad(vehicle.left_mm, vehicle.right_mm, self.rig.vehicle.sensor_baseline_mm)
-        roll = np.where(np.isfinite(roll), roll, 0.0)
-        if roll.shape != (n,):
-            roll = np.zeros(n)
-        chord = lit_chord_mm(self.cameras, candidates, matches, roll)
-        matches = contact_from_axis(matches, roll, self.config.wire_radius_mm, chord)
-        widths = face_widths_mm(
-            self.cameras,
-            self.tables,
-            candidates,
-            matches,
-            roll,
-            tolerance_mm=self.config.width_tolerance_mm,
-            max_width_mm=self.config.wire_width_mm[1],
-        )
-        self._check_tables(widths.table_ratio)
-        valid = np.isfinite(matches.x_mm) & np.isfinite(matches.z_mm)
-        scan = matches.scan[valid]
+        self._check_tables(staged.table_ratio)
         released = self.tracker.push(
-            block.first_scan + scan,
-            block.position_m[scan],
-            matches.x_mm[valid],
-            matches.z_mm[valid],
+            block.first_scan + staged.scan,
+            block.position_m[staged.scan],
+            staged.x_mm,
+            staged.z_mm,
             {
-                "wear_width_mm": widths.width_mm[valid],
-                "cameras": matches.cameras[valid],
-                "reprojection_rms_px": matches.reprojection_rms_px[valid],
+                "wear_width_mm": staged.wear_width_mm,
+                "cameras": staged.cameras,
+                "reprojection_rms_px": staged.reprojection_rms_px,
             },
-            verified=matches.verified[valid],
+            verified=staged.verified,
             last_scan=block.first_scan + n - 1,
             last_position_m=float(block.position_m[-1]),
         )
@@ -376,6 +358,124 @@ class LineScanProcessor:
                 100.0 * self.config.table_tolerance,
             )
             self._warned[c] = True
+
+
+def fit_problem(
+    rig_name: str, name: str, pixels: int, width: int, offset_px: int | None
+) -> str | None:
+    """Why camera ``name``'s lines of ``width`` pixels, starting at sensor pixel
+    ``offset_px`` (None: not declared, the lines must hold the whole sensor), do not fit
+    the ``pixels`` rig ``rig_name`` calibrated; None when they fit."""
+    if offset_px is None:
+        if width == pixels:
+            return None
+        return (
+            f"camera {name!r}: lines of {width} pixels, but rig {rig_name!r} "
+            f"calibrated it with {pixels} (a region of interest declares offset_px)"
+        )
+    if offset_px + width <= pixels:
+        return None
+    return (
+        f"camera {name!r}: offset_px {offset_px} + {width} pixels = {offset_px + width}, "
+        f"beyond the {pixels} pixels rig {rig_name!r} calibrated"
+    )
+
+
+@dataclass(frozen=True)
+class StagedBlock:
+    """What :class:`LineScanStage` found in a block: ``m`` points, each ``(m,)``, and the
+    model-versus-table resolution ratio of every face measured, ``(k, C)``.
+
+    ``scan`` is the index within the block; the other columns are those tracking takes."""
+
+    scan: IntArray
+    x_mm: FloatArray
+    z_mm: FloatArray
+    wear_width_mm: FloatArray
+    cameras: IntArray
+    reprojection_rms_px: FloatArray
+    verified: BoolArray
+    table_ratio: FloatArray
+
+
+@dataclass(frozen=True)
+class LineScanStage:
+    """The stateless part of :class:`LineScanProcessor` (its ``stage``): features,
+    matching, contact points and face widths of one block, from the rig alone; picklable,
+    so that blocks may be staged in worker processes."""
+
+    rig_name: str
+    names: tuple[str, ...]
+    cameras: tuple[LineScanCamera, ...]
+    tables: tuple[ResolutionTable, ...]
+    pixels: tuple[int, ...]
+    sigma_px: FloatArray
+    features: FeatureConfig
+    matching: MatchConfig
+    baseline_mm: float
+    wire_radius_mm: float
+    width_tolerance_mm: float
+    max_width_mm: float
+
+    def __call__(self, block: ScanBlock) -> StagedBlock | None:
+        """Stage ``block`` (None: it has no scan); a ``UserError`` for a block that lacks a
+        camera of the rig or whose lines do not fit it."""
+        missing = [name for name in self.names if name not in block.cameras]
+        if missing:
+            raise UserError(
+                f"scan block at scan {block.first_scan} has no camera {missing[0]!r} "
+                f"of rig {self.rig_name!r} (cameras: {', '.join(block.cameras)})"
+            )
+        for name, pixels in zip(self.names, self.pixels, strict=True):
+            # within the sensor (the whole-sensor check: check_run)
+            lines = block.cameras[name]
+            problem = fit_problem(
+                self.rig_name, name, pixels, lines.lines.shape[1], lines.offset_px
+            )
+            if problem is not None:
+                raise UserError(problem)
+        n = block.scans
+        if n == 0:
+            return None
+        features = []
+        for name in self.names:
+            lines = block.cameras[name]
+            if lines.lines.shape[0] != n:
+                raise UserError(
+                    f"camera {name!r} has {lines.lines.shape[0]} lines in a block of {n} scans"
+                )
+            features.append(extract_features(lines.lines, lines.bit_depth, config=self.features))
+        offsets = [block.cameras[name].offset_px for name in self.names]
+        candidates = pad_candidates(features, n, self.matching.max_candidates, offsets)
+        cameras = list(self.cameras)
+        matches = match(cameras, candidates, self.sigma_px, self.matching)
+        vehicle = block.vehicle
+        roll = roll_rad(vehicle.left_mm, vehicle.right_mm, self.baseline_mm)
+        roll = np.where(np.isfinite(roll), roll, 0.0)
+        if roll.shape != (n,):
+            roll = np.zeros(n)
+        chord = lit_chord_mm(cameras, candidates, matches, roll)
+        matches = contact_from_axis(matches, roll, self.wire_radius_mm, chord)
+        widths = face_widths_mm(
+            cameras,
+            list(self.tables),
+            candidates,
+            matches,
+            roll,
+            tolerance_mm=self.width_tolerance_mm,
+            max_width_mm=self.max_width_mm,
+        )
+        valid = np.isfinite(matches.x_mm) & np.isfinite(matches.z_mm)
+        return StagedBlock(
+            scan=matches.scan[valid],
+            x_mm=matches.x_mm[valid],
+            z_mm=matches.z_mm[valid],
+            wear_width_mm=widths.width_mm[valid],
+            cameras=matches.cameras[valid],
+            reprojection_rms_px=matches.reprojection_rms_px[valid],
+            verified=matches.verified[valid],
+            table_ratio=widths.table_ratio,
+        )
 
 
 def contact_from_axis(

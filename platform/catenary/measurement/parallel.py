@@ -1,0 +1,93 @@
+"""A run's blocks staged in worker processes (``catenary process --workers N``).
+
+A ``StagedProcessor``'s ``stage`` (stateless: its result depends on the block alone) runs in
+a pool of worker processes, each of which opens the run file itself and reads the camera
+lines of the blocks it is given. What crosses between the processes is the stage, once per
+worker, a block's scan positions, times and vehicle sensors (tens of kilobytes) and the
+stage's result: never the camera lines, so nothing of the run is pickled. The main process
+reads those small series, keeps at most ``IN_FLIGHT_PER_WORKER`` blocks per worker in
+flight (memory stays flat whatever the run's length) and takes the staged blocks in run
+order. Workers are forked by a fork server that has imported this module and the stage's
+(``forkserver``, preloaded): nothing of the main process (its open HDF5 file, its threads) is
+inherited, and the imports are paid once, not per worker.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+import signal
+import warnings
+from collections import deque
+from collections.abc import Callable, Generator, Iterable
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from catenary.domain import ScanBlock
+from catenary.measurement.runfile import RunFile, RunFileWarning, open_run
+
+__all__ = ["IN_FLIGHT_PER_WORKER", "default_workers", "staged_blocks"]
+
+IN_FLIGHT_PER_WORKER = 2
+"""Blocks submitted and not yet taken, per worker: enough to keep every worker busy while
+the main process takes a block."""
+
+
+def default_workers() -> int:
+    """The cores this process may run on (its CPU affinity; else the machine's cores)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+_worker: tuple[Callable[[ScanBlock], Any], RunFile] | None = None
+
+
+def _start_worker(stage: Callable[[ScanBlock], Any], run_path: Path) -> None:
+    """A worker's start: the stage, and the run file open for its camera lines."""
+    global _worker
+    # the main process takes Ctrl-C and ends the pool; the run's warnings it has given
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    warnings.simplefilter("ignore", RunFileWarning)
+    _worker = stage, open_run(run_path)
+
+
+def _stage_block(block: ScanBlock) -> Any:
+    """In a worker: the stage of ``block`` (without camera lines), its lines read here."""
+    assert _worker is not None
+    stage, run = _worker
+    lines = run.camera_lines(block.first_scan, block.first_scan + block.scans)
+    return stage(replace(block, cameras=lines))
+
+
+def staged_blocks(
+    run_path: Path,
+    stage: Callable[[ScanBlock], Any],
+    blocks: Iterable[ScanBlock],
+    workers: int,
+) -> Generator[tuple[ScanBlock, Future[Any]], None, None]:
+    """Each of ``blocks`` (of the run file ``run_path``, without camera lines: read by the
+    workers), in order, with the future of its ``stage`` in a pool of ``workers`` processes.
+    Closing the iterator (``contextlib.closing``) cancels the blocks not started and ends
+    the pool."""
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload([__name__, type(stage).__module__])
+    pool = ProcessPoolExecutor(
+        workers,
+        mp_context=context,
+        initializer=_start_worker,
+        initargs=(stage, run_path),
+    )
+    try:
+        pending: deque[tuple[ScanBlock, Future[Any]]] = deque()
+        for block in blocks:
+            pending.append((block, pool.submit(_stage_block, block)))
+            if len(pending) >= IN_FLIGHT_PER_WORKER * workers:
+                yield pending.popleft()
+        while pending:
+            yield pending.popleft()
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
