@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-import httpx
+import httpx2
 import pytest
 from click.testing import CliRunner
 from sqlalchemy import Engine
@@ -44,16 +44,16 @@ def test_serve_answers_on_its_port_and_stops_on_sigterm(engine: Engine, database
         deadline = time.monotonic() + 30.0
         while True:
             try:
-                answer = httpx.get(f"http://127.0.0.1:{port}/health", timeout=2.0)
+                answer = httpx2.get(f"http://127.0.0.1:{port}/health", timeout=2.0)
                 break
-            except httpx.TransportError:
+            except httpx2.TransportError:
                 assert server.poll() is None, server.communicate()[0]
                 assert time.monotonic() < deadline, "the server did not start in 30 s"
                 time.sleep(0.2)
         assert answer.json() == {"status": "ok"}
         assert "server" not in answer.headers
         for _ in range(4):  # whichever process answers
-            assert httpx.get(f"http://127.0.0.1:{port}/api/v1/runs").status_code == 401
+            assert httpx2.get(f"http://127.0.0.1:{port}/api/v1/runs").status_code == 401
     finally:
         server.terminate()
         output = server.communicate(timeout=30)[0]
