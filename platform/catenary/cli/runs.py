@@ -58,9 +58,10 @@ __all__ = ["compare", "export", "process", "runs"]
 )
 @click.option(
     "--workers",
-    type=click.IntRange(min=1),
-    help="Processes staging blocks at once (default: this machine's cores; 1: all in this "
-    "process). The results are the same whatever the number.",
+    type=click.IntRange(min=0),
+    default=1,
+    help="Processes staging blocks at once (default 1: all in this process; 0: this "
+    "machine's cores). The results are the same whatever the number.",
 )
 @database_option
 @click.pass_context
@@ -74,7 +75,7 @@ def process(
     track: str | None,
     processor: str,
     replace: bool,
-    workers: int | None,
+    workers: int,
 ) -> None:
     """Process a recorded run into per-span wear in the database."""
     from catenary.maintenance.alerts import evaluate_stored_run, run_alerting, run_alerts_lines
@@ -94,7 +95,7 @@ def process(
         track=track,
         processor=processor,
         replace=replace,
-        workers=default_workers() if workers is None else workers,
+        workers=default_workers() if workers == 0 else workers,
     )
     alerting = run_alerting(settings, app.registry)
     if alerting.policy is not None:  # its alerts queue notifications: a wrong channel, now
