@@ -137,3 +137,21 @@ def test_encoder_readings_are_appended(tmp_path: Path) -> None:
         assert f["encoder/time_s"].dtype == np.float64
     with open_run(path) as run:  # a reader that does not use them reads the run as before
         assert run.header.scans == 1
+
+
+def test_the_recorded_source_replays_the_flags(tmp_path: Path) -> None:
+    """``catenary record --source recorded``: the flags go through the recorder unchanged."""
+    from catenary.measurement.recording import record_run
+    from catenary_recorded import open_recorded
+
+    source = tmp_path / "run.h5"
+    valid = np.ones(30, dtype=bool)
+    valid[[0, 17, 18]] = False
+    write(source, valid, [30])
+    copy = tmp_path / "copy.h5"
+    with open_recorded({"path": str(source)}) as stream:
+        result = record_run(copy, stream, block_scans=8)
+    assert result.invalid_lines == {"a": 0, "b": 3}
+    read = read_valid(copy, 30)
+    assert read["a"] == [None]
+    np.testing.assert_array_equal(read["b"][0], valid)
