@@ -136,33 +136,43 @@ def unpack_lines(
     return values[:pixels].reshape(lines, width)
 
 
-def _groups(raw: UInt8Array, group_bytes: int) -> UInt16Array:
-    """``raw`` zero-padded to whole groups, ``[groups, group_bytes]`` as uint16."""
-    padded = np.zeros(-(-raw.shape[0] // group_bytes) * group_bytes, dtype=np.uint16)
-    padded[: raw.shape[0]] = raw
-    return padded.reshape(-1, group_bytes)
+def _whole_groups(raw: UInt8Array, group_bytes: int) -> UInt8Array:
+    """``raw``, zero-padded to whole groups of ``group_bytes`` (copied only then)."""
+    short = -raw.shape[0] % group_bytes
+    if short == 0:
+        return raw
+    return np.concatenate((raw, np.zeros(short, dtype=np.uint8)))
+
+
+def _words(raw: UInt8Array, offset: int, stride: int, count: int) -> UInt16Array:
+    """The little-endian 16-bit words at bytes ``offset + i * stride`` of ``raw``, ``[count]``
+    (a strided view, unaligned: no copy)."""
+    return np.ndarray((count,), dtype="<u2", buffer=raw, offset=offset, strides=(stride,))
 
 
 def _unpack_lsb_first(raw: UInt8Array, bits: int) -> UInt16Array:
-    """PFNC LSB-first bit packing: groups of 8 pixels in ``bits`` bytes; ``[8 * groups]``."""
-    group = _groups(raw, bits)
-    out = np.empty((group.shape[0], 8), dtype=np.uint16)
+    """PFNC LSB-first bit packing: groups of 8 pixels in ``bits`` bytes; ``[8 * groups]``.
+    Pixel ``k`` of a group is the 16-bit word at its first byte, shifted and masked (its
+    ``shift + bits`` is at most 16 for 10 and 12 bits)."""
+    group = _whole_groups(raw, bits)
+    count = group.shape[0] // bits
+    out = np.empty((count, 8), dtype=np.uint16)
     mask = (1 << bits) - 1
     for k in range(8):
         first, shift = divmod(k * bits, 8)
-        word = group[:, first].astype(np.uint32)
-        for extra in range(1, -(-(shift + bits) // 8)):
-            word |= group[:, first + extra].astype(np.uint32) << (8 * extra)
-        out[:, k] = (word >> shift) & mask
+        word = _words(group, first, bits, count)
+        np.bitwise_and(np.right_shift(word, shift), mask, out=out[:, k])
     return out.reshape(-1)
 
 
 def _unpack_gige(raw: UInt8Array, bits: int) -> UInt16Array:
     """GigE Vision Mono10Packed / Mono12Packed: 2 pixels in 3 bytes; ``[2 * groups]``."""
-    group = _groups(raw, 3)
+    group = _whole_groups(raw, 3).reshape(-1, 3)
     low = bits - 8
     mask = (1 << low) - 1
     out = np.empty((group.shape[0], 2), dtype=np.uint16)
-    out[:, 0] = (group[:, 0] << low) | (group[:, 1] & mask)
-    out[:, 1] = (group[:, 2] << low) | ((group[:, 1] >> 4) & mask)
+    high = np.left_shift(group[:, 0], low, dtype=np.uint16)
+    np.bitwise_or(high, group[:, 1] & mask, out=out[:, 0])
+    high = np.left_shift(group[:, 2], low, dtype=np.uint16)
+    np.bitwise_or(high, (group[:, 1] >> 4) & mask, out=out[:, 1])
     return out.reshape(-1)
