@@ -4,17 +4,22 @@ clock, and invalid lines."""
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
+from typing import Any
 
 import h5py
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
+from catenary.cli import cli
 from catenary.domain import CameraLines, EncoderReadings, RunHeader, ScanBlock, VehicleSamples
 from catenary.errors import UserError
 from catenary.measurement.recording import ENCODER_WAIT_S, record_run
 from catenary.measurement.runfile import open_run
+from catenary.plugins import PluginRegistry, hookimpl
+from catenary.plugins.types import Source
 
 RATE_HZ = 100.0
 PIXELS = 8
@@ -252,3 +257,36 @@ def test_invalid_lines_are_written_and_counted(tmp_path: Path) -> None:
     valid = block.cameras["c"].valid
     assert valid is not None
     np.testing.assert_array_equal(np.flatnonzero(~valid), [12, 13, 29])
+
+
+class CameraPlugin:
+    @hookimpl
+    def catenary_sources(self) -> list[Source]:
+        def free(settings: Mapping[str, Any]) -> Scans:
+            return Scans(2)
+
+        def lossy(settings: Mapping[str, Any]) -> Scans:
+            return Scans(3, positions=lambda t: t, invalid=(12, 13, 29))
+
+        return [Source("free-scans", "free-running", free), Source("lossy", "lossy", lossy)]
+
+
+def test_the_command_says_it_in_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    def registry(**kwargs: Any) -> PluginRegistry:
+        return PluginRegistry(plugins=[("camera-test", CameraPlugin())], **kwargs)
+
+    monkeypatch.setattr("catenary.plugins.manager.PluginRegistry", registry)
+    out = tmp_path / "run.h5"
+    result = CliRunner().invoke(cli, ["record", str(out), "--source", "free-scans"])
+    assert result.exit_code == 1 and not out.exists()
+    assert result.output == (
+        "Error: source 'free-scans' of plugin 'camera-test' takes its scans' positions from the "
+        "wheel encoder: it needs a vehicle source that reads the encoder (--vehicle-source "
+        "can)\n"
+    )
+    args = ["record", str(out), "--source", "lossy", "--block-scans", "10"]
+    result = CliRunner().invoke(cli, args)
+    assert result.exit_code == 0, result.output
+    assert result.stdout == (
+        f"recorded {out}: 30 scans, 30 vehicle samples (0 flagged); 3 lines invalid (c 3)\n"
+    )
