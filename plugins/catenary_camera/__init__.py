@@ -1,0 +1,1 @@
+"""Live line-scan cameras (GigE Vision through Aravis; optional extra ``camera``)."""
