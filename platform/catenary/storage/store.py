@@ -71,6 +71,8 @@ TRANSIENT_CODES = frozenset(
 #: S3: the most parts an upload may have; a file that needs more at the configured part size
 #: is sent in larger parts.
 MAX_PARTS = 10_000
+#: S3: the ``x-amz-content-sha256`` of a request whose body is not part of its signature.
+UNSIGNED = "UNSIGNED-PAYLOAD"
 #: The XML namespace of S3's requests and answers.
 S3_XMLNS = "http://s3.amazonaws.com/doc/2006-03-01/"
 #: Without these, the AWS SDK of current pyarrow sends checksums that S3-compatible services
@@ -698,7 +700,8 @@ class S3Objects:
         headers: Mapping[str, str],
     ) -> tuple[int, http.client.HTTPMessage, bytes]:  # fmt: skip
         """One signed request: its answer's status, headers and body; ``OSError`` when the
-        service cannot be reached or the connection fails."""
+        service cannot be reached or the connection fails. The body's SHA-256 is signed
+        unless ``headers`` give ``x-amz-content-sha256`` (``UNSIGNED``: another check)."""
         endpoint = urlsplit(self.endpoint)
         query_text = "&".join(
             f"{quote(name, safe='-_.~')}={quote(value, safe='-_.~')}"
@@ -706,8 +709,9 @@ class S3Objects:
         )
         now = datetime.now(UTC)
         amz_date, day = now.strftime("%Y%m%dT%H%M%SZ"), now.strftime("%Y%m%d")
-        payload = hashlib.sha256(body).hexdigest()
-        signing_headers = {name.lower(): value for name, value in headers.items()} | {
+        signing_headers = {name.lower(): value for name, value in headers.items()}
+        payload = signing_headers.get("x-amz-content-sha256") or hashlib.sha256(body).hexdigest()
+        signing_headers |= {
             "host": endpoint.netloc,
             "x-amz-content-sha256": payload,
             "x-amz-date": amz_date,
@@ -741,7 +745,8 @@ class S3Objects:
         )
         try:
             target = f"{path}?{query_text}" if query_text else path
-            connection.request(method, target, body=body, headers=signing_headers)
+            # a memoryview is sent as it is, where bytes would be copied after the headers
+            connection.request(method, target, body=memoryview(body), headers=signing_headers)
             response = connection.getresponse()
             return response.status, response.headers, response.read()
         finally:
@@ -835,11 +840,12 @@ class S3Objects:
     def upload_part(self, key: str, upload: str, number: int, data: bytes, md5: bytes) -> str:
         """Send part ``number`` of the upload ``upload`` to ``key`` (UploadPart), with its MD5
         digest ``md5`` for the service to check (``Content-MD5``; a corrupted part is refused
-        with ``BadDigest`` and sent again); its ETag."""
+        with ``BadDigest`` and sent again; the part is not hashed again for the signature);
+        its ETag."""
         headers, _ = self._call(
             "UploadPart", "PUT", self._path(key),
             {"partNumber": str(number), "uploadId": upload}, data,
-            {"content-md5": base64.b64encode(md5).decode()},
+            {"content-md5": base64.b64encode(md5).decode(), "x-amz-content-sha256": UNSIGNED},
         )  # fmt: skip
         etag = headers.get("ETag", "").strip('"')
         if not etag:
