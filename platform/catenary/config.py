@@ -12,9 +12,10 @@ Precedence, highest first: command-line option, environment variable, config fil
 - data directory (SQLite file, per-run sample files, reports): ``$CATENARY_DATA_DIR``,
   ``[paths] data_dir``, else the per-user data directory;
 - store of bulk data (``catenary.storage.store``): ``[store] url``, a folder (relative to the
-  config file's folder) or ``s3://BUCKET/PREFIX`` with ``endpoint``, ``region`` and the names of
-  the environment variables holding the keys (``access_key_env``, ``secret_key_env``), else
-  the data directory (``store_settings``).
+  config file's folder) or ``s3://BUCKET/PREFIX`` with ``endpoint``, ``region``, the names of
+  the environment variables holding the keys (``access_key_env``, ``secret_key_env``) and the
+  size of the parts large files are uploaded in (``part_size_mb``, MiB, else 64), else the
+  data directory (``store_settings``).
 
 The sections above are resolved here; the other sections are kept in ``Settings.sections`` for
 the modules and plugins that read them: the core's (``CORE_SECTIONS``) and those plugins declare
@@ -43,13 +44,17 @@ from catenary.errors import UserError
 APP_NAME = "catenary"
 #: An S3 bucket's name (AWS's rules, without the rarely used dotted forms' checks).
 BUCKET_NAME = re.compile(r"[a-z0-9][a-z0-9.-]{1,61}[a-z0-9]")
+#: The parts large files are uploaded to an S3 store in (``[store] part_size_mb``), in MiB, and
+#: the sizes S3 allows (the last part of an upload may be smaller).
+DEFAULT_PART_MB = 64
+PART_MB_RANGE = (5, 5 * 1024)
 #: How long connecting to a database server may take before the command gives up, in seconds.
 DEFAULT_CONNECT_TIMEOUT_S = 10.0
 KNOWN_KEYS: dict[str, set[str]] = {
     "database": {"url", "connect_timeout_s", "statement_timeout_s"},
     "paths": {"data_dir"},
     "plugins": {"disabled"},
-    "store": {"url", "endpoint", "region", "access_key_env", "secret_key_env"},
+    "store": {"url", "endpoint", "region", "access_key_env", "secret_key_env", "part_size_mb"},
 }
 CORE_SECTIONS = frozenset(
     {
@@ -99,6 +104,7 @@ class S3StoreSettings:
     ``endpoint`` is the service's ``http(s)://HOST[:PORT]`` (None: AWS); the keys are read from
     the environment variables ``access_key_env`` and ``secret_key_env`` when the store is
     opened (None: the AWS SDK's own chain: ``AWS_ACCESS_KEY_ID``, ``~/.aws``, instance role).
+    ``part_bytes``: the size of the parts a large file is uploaded in (``Store.put_parts``).
     """
 
     bucket: str
@@ -108,6 +114,7 @@ class S3StoreSettings:
     access_key_env: str | None = None
     secret_key_env: str | None = None
     config_path: Path | None = None
+    part_bytes: int = DEFAULT_PART_MB << 20
 
     @property
     def url(self) -> str:
@@ -175,15 +182,25 @@ def _seconds(config_path: Path | None, key: str, value: object) -> float:
 
 def _store(config_path: Path | None, section: Mapping[str, object]) -> StoreSettings | None:
     """``[store]`` resolved: None when it gives no ``url``."""
+    section = dict(section)
+    part_given = "part_size_mb" in section
+    part_mb = section.pop("part_size_mb", DEFAULT_PART_MB)
+    low, high = PART_MB_RANGE
+    if isinstance(part_mb, bool) or not isinstance(part_mb, int) or not low <= part_mb <= high:
+        raise UserError(
+            f"{config_path}: store.part_size_mb must be a whole number of MiB from {low} to "
+            f"{high}, not {part_mb!r}"
+        )
     for key, value in section.items():
         if not isinstance(value, str):
             raise UserError(f"{config_path}: store.{key} must be a string, not {value!r}")
     text: dict[str, str] = {key: str(value) for key, value in section.items() if value}
     url = text.get("url")
     if url is None or "://" not in url:
-        for key in ("endpoint", "region", "access_key_env", "secret_key_env"):
-            if key in text:
-                raise UserError(f"{config_path}: store.{key} needs an s3:// store.url")
+        s3_only = ("endpoint", "region", "access_key_env", "secret_key_env")
+        given = [key for key in s3_only if key in text] + ["part_size_mb"] * part_given
+        if given:
+            raise UserError(f"{config_path}: store.{given[0]} needs an s3:// store.url")
         if url is None:
             return None
         folder = Path(url).expanduser()
@@ -223,6 +240,7 @@ def _store(config_path: Path | None, section: Mapping[str, object]) -> StoreSett
         access_key_env=access,
         secret_key_env=secret,
         config_path=config_path,
+        part_bytes=part_mb << 20,
     )
 
 

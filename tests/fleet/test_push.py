@@ -253,6 +253,45 @@ def test_a_run_processed_again_is_pushed_as_a_new_processing_with_its_run_file(
     assert open_store(central).digest(run_file_key(run)).size_bytes == small_run.run.stat().st_size
 
 
+class Cut(Exception):
+    """A put of a run file cut short."""
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("database_url", ["postgresql"], indirect=True)
+def test_run_files_pushed_in_parts_resume_where_a_push_was_cut(
+    depot: Depot, small_run: Any
+) -> None:
+    """The central store takes run files in 5 MiB parts; a push of the run file cut after two
+    parts leaves them in place, and the next push sends only the others."""
+    config = tomllib.loads(depot.central.read_text())
+    config["store"]["part_size_mb"] = 5
+    depot.central.write_text(tomli_w.dumps(config))
+    run = processed(depot, small_run)
+    succeeded(depot.on_vehicle("push", "--to", depot.central))
+    central = open_store(load_settings(config_path=depot.central, environ={}))
+    parts = -(-small_run.run.stat().st_size // (5 << 20))
+    assert parts > 2
+
+    def cut(part: Any) -> None:
+        if part.number == 2:
+            raise Cut
+
+    with pytest.raises(Cut):  # what a push cut after two parts of the run file leaves
+        central.put_parts(small_run.run, run_file_key(run), on_part=cut)
+    output = succeeded(depot.on_vehicle("push", "--to", depot.central, "--run-files"))
+    assert f"run files: {parts - 2} part(s) sent, 2 found in place" in output
+    sent = central.digest(run_file_key(run))
+    assert sent.size_bytes == small_run.run.stat().st_size
+    engine = make_engine(depot.central_url)
+    try:
+        with session_scope(engine, read_only=True) as session:
+            (stored,) = session.scalars(select(Run))
+            assert stored.source_key == run_file_key(run) and stored.source_sha256 == sent.sha256
+    finally:
+        engine.dispose()
+
+
 @pytest.mark.parametrize("database_url", ["postgresql"], indirect=True)
 def test_a_run_cut_at_other_masts_than_the_central_registers_is_refused(
     depot: Depot, build: Any

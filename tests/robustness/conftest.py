@@ -64,9 +64,12 @@ def start_catenary(
     env: Mapping[str, str] | None = None,
     stdout: int | IO[str] = subprocess.PIPE,
     stderr: int | IO[str] = subprocess.PIPE,
+    new_session: bool = False,
 ) -> subprocess.Popen[str]:
     """Start ``catenary ARGS`` in a child process, as ``catenary`` runs it, and return at once;
     its output goes to ``stdout`` and ``stderr`` (pipes of text by default), its input is empty.
+    ``new_session``: in a session and process group of its own (whose id is its pid), which
+    the processes it starts share.
     """
     return subprocess.Popen(
         _command(args),
@@ -75,6 +78,7 @@ def start_catenary(
         stdout=stdout,
         stderr=stderr,
         text=True,
+        start_new_session=new_session,
     )
 
 

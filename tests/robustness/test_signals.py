@@ -1,16 +1,19 @@
 """SIGINT, SIGTERM and SIGKILL at several points of ``catenary process``: the database holds
 nothing of the run or all of it (its span rows matching its samples file), Ctrl-C and SIGTERM
 end in one line (130, 143), and the next ``process`` of the same file leaves no scratch file
-and stores the run or says it is stored."""
+and stores the run or says it is stored. A ``process`` with worker processes killed by SIGKILL
+leaves none of them behind."""
 
 from __future__ import annotations
 
+import os
 import signal
 import sqlite3
 import subprocess
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager, nullcontext, suppress
+from dataclasses import dataclass
 from pathlib import Path
 
 import pyarrow.compute as pc
@@ -139,3 +142,59 @@ def test_a_signal_during_process(
     assert not list(samples.rglob(".*"))  # no hidden file left anywhere
     (kept,) = samples.rglob("*.parquet")  # the stored processing's, at its key
     assert kept.relative_to(samples).parts[:2] == ("line=demo-line", "track=1")
+
+
+@dataclass(frozen=True)
+class Member:
+    """A live process of a process group: its parent's pid and its command line."""
+
+    parent: int
+    command: str
+
+
+def group_members(group: int) -> dict[int, Member]:
+    """The live processes (not zombies) of the process group ``group``, by pid (``/proc``)."""
+    found = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            state, parent, pgrp = stat.read_text().rpartition(")")[2].split()[:3]
+            if int(pgrp) == group and state != "Z":
+                command = (stat.parent / "cmdline").read_bytes().replace(b"\0", b" ").decode()
+                found[int(stat.parent.name)] = Member(int(parent), command)
+        except OSError:  # ended meanwhile
+            continue
+    return found
+
+
+@pytest.mark.slow  # the real CLI on a simulated run
+def test_sigkill_leaves_no_worker_behind(
+    small_run: SmallRun, database: Path, isolated_environment: Path
+) -> None:
+    """``process --workers 2`` killed by SIGKILL while its workers stage blocks: within a few
+    seconds its output pipes reach end-of-file and none of its processes (workers, fork
+    server, resource tracker) remains."""
+    url = f"sqlite:///{database}"
+    process = start_catenary(*small_run.process_args(url), "--workers", "2", new_session=True)
+    try:
+        deadline = time.monotonic() + 60.0
+        while True:
+            members = group_members(process.pid)
+            server = {p for p, m in members.items() if "multiprocessing.forkserver" in m.command}
+            if sum(m.parent in server for m in members.values()) == 2:  # its two workers
+                break
+            assert process.poll() is None, f"process ended before its workers were seen: {members}"
+            assert time.monotonic() < deadline, f"no two workers after 60 s: {members}"
+            time.sleep(0.01)
+        process.kill()
+        killed = time.monotonic()
+        assert any("resource_tracker" in m.command for m in members.values()), members
+        process.communicate(timeout=60)  # both pipes at end-of-file, the process reaped
+        assert process.returncode == -signal.SIGKILL
+        assert time.monotonic() - killed < 5.0, f"pipes held {time.monotonic() - killed:.1f} s"
+        while (left := group_members(process.pid)) and time.monotonic() - killed < 5.0:
+            time.sleep(0.05)
+        assert not left, left
+    finally:
+        with suppress(ProcessLookupError):  # whatever of it a failure left
+            os.killpg(process.pid, signal.SIGKILL)
+        process.wait()

@@ -77,7 +77,8 @@ def test_s3_store_settings(tmp_path: Path) -> None:
     config = write_config(
         tmp_path,
         '[store]\nurl = "s3://catenary/fleet/a/"\nendpoint = "https://s3.example:9000"\n'
-        'region = "eu-central-1"\naccess_key_env = "AK_VAR"\nsecret_key_env = "SK_VAR"\n',
+        'region = "eu-central-1"\naccess_key_env = "AK_VAR"\nsecret_key_env = "SK_VAR"\n'
+        "part_size_mb = 16\n",
     )
     store = load_settings(config_path=config).store
     assert store == S3StoreSettings(
@@ -88,6 +89,7 @@ def test_s3_store_settings(tmp_path: Path) -> None:
         access_key_env="AK_VAR",
         secret_key_env="SK_VAR",
         config_path=config,
+        part_bytes=16 << 20,
     )
     assert store.url == "s3://catenary/fleet/a"
 
@@ -107,6 +109,12 @@ def test_s3_store_settings(tmp_path: Path) -> None:
         ('url = "s3://b12"\nendpoint = "h:9000"', "store.endpoint 'h:9000' must be http(s)://"),
         ('url = "s3://b12"\naccess_key_env = "A"', "store.secret_key_env is missing"),
         ('url = "s3://b12"\nregion = 1', "store.region must be a string, not 1"),
+        (
+            'url = "s3://b12"\npart_size_mb = 4',
+            "store.part_size_mb must be a whole number of MiB from 5 to 5120, not 4",
+        ),
+        ('url = "s3://b12"\npart_size_mb = "64"', "store.part_size_mb must be a whole number"),
+        ('url = "bulk"\npart_size_mb = 64', "store.part_size_mb needs an s3:// store.url"),
     ],
 )
 def test_bad_store_settings_are_one_line_naming_file_and_key(

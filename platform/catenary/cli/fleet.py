@@ -97,6 +97,11 @@ def push(ctx: click.Context, central_path: Path, run_files: bool) -> None:
         f"{result.objects} object(s) ({_megabytes(result.bytes)})"
         + (f"; {result.already} stored meanwhile by another push" if result.already else "")
     )
+    if result.parts_found:
+        click.echo(
+            f"run files: {result.parts_sent} part(s) sent, {result.parts_found} found in place "
+            "from a push cut short"
+        )
     if not result.run_ids:
         return
     if alerting.policy is None:

@@ -59,9 +59,9 @@ __all__ = ["compare", "export", "process", "runs"]
 @click.option(
     "--workers",
     type=click.IntRange(min=0),
-    default=1,
-    help="Processes staging blocks at once (default 1: all in this process; 0: this "
-    "machine's cores). The results are the same whatever the number.",
+    default=0,
+    help="Processes staging blocks at once (default 0: one per core this process may run "
+    "on; 1: all in this process). The results are the same whatever the number.",
 )
 @database_option
 @click.pass_context

@@ -22,7 +22,8 @@ What moves, and how a push stays whole:
   central register places elsewhere (or lacks) is refused, naming the first such mast: pull
   and process again. A track the central side has no mast of takes the vehicle's masts.
 - **Run files** stay on the vehicle unless asked (``run_files``): then each run's file is put
-  under ``runs/RUN.h5`` (checked against the run's SHA-256) and the central run refers to it.
+  under ``runs/RUN.h5`` in parts (``Store.put_parts``: a push cut short resumes from the parts
+  in place, each checked), checked against the run's SHA-256, and the central run refers to it.
 """
 
 from __future__ import annotations
@@ -55,7 +56,15 @@ from catenary.storage.models import (
 )
 from catenary.storage.rigs import register_rig_calibration
 from catenary.storage.runs import register_track, track_masts, track_register
-from catenary.storage.store import Store, StoredObject, envelope_key, open_store, samples_key
+from catenary.storage.store import (
+    ContentMismatch,
+    Part,
+    Store,
+    StoredObject,
+    envelope_key,
+    open_store,
+    samples_key,
+)
 
 __all__ = ["PullResult", "PushResult", "pull", "push", "run_file_key"]
 
@@ -90,6 +99,10 @@ class PushResult:
     run_ids: list[int] = field(default_factory=list)
     moved: list[tuple[str, str, int]] = field(default_factory=list)
     """Each processing stored centrally: its run's UUID, its own and its samples' bytes."""
+    parts_sent: int = 0
+    """Parts of run files sent."""
+    parts_found: int = 0
+    """Parts of run files found in place from a push cut short (not sent again)."""
 
 
 @dataclass(frozen=True)
@@ -149,7 +162,7 @@ def push(
                 progress(size)
             if run_files:
                 for run in _runs_without_file(local_engine, central_engine):
-                    source = _send_run_file(run, central_store)
+                    source = _send_run_file(run, central_store, result)
                     _set_run_file(central_engine, run.uuid, source.key)
                     result.objects += 1
                     result.bytes += source.size_bytes
@@ -262,17 +275,27 @@ def _send_envelopes(
         return [central.put_bytes(source.read(), theirs)]
 
 
-def _send_run_file(run: Run, central: Store) -> StoredObject:
-    """Put the run's file in the central store, checked against the run's SHA-256."""
+def _send_run_file(run: Run, central: Store, result: PushResult) -> StoredObject:
+    """Put the run's file in the central store in parts (resuming a push cut short), checked
+    against the run's SHA-256, unless it is there already (read back whole); its parts
+    counted in ``result``."""
     path = Path(run.source_file)
     if not path.is_file():
         raise UserError(f"{path}: the file of run {run.uuid} is no longer here (--run-files)")
-    key = run_file_key(run.uuid)
-    placed = central.put_file(path, key)
-    if placed.sha256 != run.source_sha256:
-        central.delete(key)
-        raise UserError(f"{path}: its content is no longer that of run {run.uuid}")
-    return placed
+    key, size = run_file_key(run.uuid), path.stat().st_size
+    if central.verify(key, size, run.source_sha256):  # a push cut before it was recorded
+        return StoredObject(key, size, run.source_sha256)
+
+    def count(part: Part) -> None:
+        if part.sent:
+            result.parts_sent += 1
+        else:
+            result.parts_found += 1
+
+    try:
+        return central.put_parts(path, key, sha256=run.source_sha256, on_part=count)
+    except ContentMismatch:
+        raise UserError(f"{path}: its content is no longer that of run {run.uuid}") from None
 
 
 def _runs_without_file(local_engine: Engine, central_engine: Engine) -> list[Run]:

@@ -10,6 +10,13 @@ flight (memory stays flat whatever the run's length) and takes the staged blocks
 order. Workers are forked by a fork server that has imported this module and the stage's
 (``forkserver``, preloaded): nothing of the main process (its open HDF5 file, its threads) is
 inherited, and the imports are paid once, not per worker.
+
+The workers end with the main process, however it ends (SIGKILL included): each holds the
+reading end of a pipe whose only writing end is the main process's, and a thread of the
+worker ends it as soon as that pipe reads as closed. The fork server then ends too (CPython's
+ends when the last process holding its "alive" pipe, the main process or a worker, is gone),
+and so does the resource tracker: nothing of the command is left holding its standard output
+and error, which reach end-of-file at once for whoever reads them.
 """
 
 from __future__ import annotations
@@ -17,11 +24,13 @@ from __future__ import annotations
 import multiprocessing
 import os
 import signal
+import threading
 import warnings
 from collections import deque
 from collections.abc import Callable, Generator, Iterable
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import replace
+from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
@@ -46,13 +55,22 @@ def default_workers() -> int:
 _worker: tuple[Callable[[ScanBlock], Any], RunFile] | None = None
 
 
-def _start_worker(stage: Callable[[ScanBlock], Any], run_path: Path) -> None:
-    """A worker's start: the stage, and the run file open for its camera lines."""
+def _start_worker(stage: Callable[[ScanBlock], Any], run_path: Path, lifeline: Connection) -> None:
+    """A worker's start: the stage, the run file open for its camera lines, and a thread
+    ending the worker when the main process's end of ``lifeline`` closes."""
     global _worker
     # the main process takes Ctrl-C and ends the pool; the run's warnings it has given
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     warnings.simplefilter("ignore", RunFileWarning)
+    threading.Thread(target=_end_with, args=(lifeline,), name="lifeline", daemon=True).start()
     _worker = stage, open_run(run_path)
+
+
+def _end_with(lifeline: Connection) -> None:
+    """In a worker: wait until ``lifeline`` reads as closed (the main process, which holds
+    its only writing end and never writes, has ended), then end this process at once."""
+    lifeline.poll(None)
+    os._exit(1)
 
 
 def _stage_block(block: ScanBlock) -> Any:
@@ -72,14 +90,15 @@ def staged_blocks(
     """Each of ``blocks`` (of the run file ``run_path``, without camera lines: read by the
     workers), in order, with the future of its ``stage`` in a pool of ``workers`` processes.
     Closing the iterator (``contextlib.closing``) cancels the blocks not started and ends
-    the pool."""
+    the pool; the workers end with this process, however it ends (module docstring)."""
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload([__name__, type(stage).__module__])
+    lifeline, held = context.Pipe(duplex=False)  # ``held``: the only writing end, kept here
     pool = ProcessPoolExecutor(
         workers,
         mp_context=context,
         initializer=_start_worker,
-        initargs=(stage, run_path),
+        initargs=(stage, run_path, lifeline),
     )
     try:
         pending: deque[tuple[ScanBlock, Future[Any]]] = deque()
@@ -91,3 +110,5 @@ def staged_blocks(
             yield pending.popleft()
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+        lifeline.close()
+        held.close()
