@@ -13,10 +13,12 @@ the **frame id** carries it on, so a camera's lines are consecutive scans and a 
 gap. Frame ids wrap (GigE Vision's 16-bit ids run 1-65535, then 1 again: ``frame_id_modulus``).
 
 * Free-running lines (``quantum = 1``): the scan of a frame's first line is its time since
-  the run's start times the line rate, rounded. A frame that the ids place more than
-  ``resync_lines`` away from where its time places it (the camera's line clock drifting from
-  the nominal rate, a frame id jump) is placed by its time again (``resyncs``): the lines
-  between are invalid, and lines the camera would repeat are dropped, never written twice.
+  the run's start times the line rate, rounded. When the ids place a camera's frames more
+  than ``resync_lines`` away from where their times do, the camera is placed by time again
+  (``resyncs``: its line clock drifted from the nominal rate): the lines between are invalid,
+  and lines it would repeat are dropped, never written twice. A frame is stamped late (a
+  busy camera or host), never early: its time can only say it is later than its id does,
+  and is believed when the last :data:`RESYNC_FRAMES` frames all say so.
 * Encoder-triggered lines (``quantum = N``): every camera sees the same encoder pulses, so
   their frames hold the same lines; a camera's first frame goes to the nearest multiple of
   ``N`` by time, then its ids alone carry it (the speed varies, so time cannot check it).
@@ -28,7 +30,9 @@ camera past it, or a camera that dropped off given up for those scans).
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
+from typing import Final
 
 import numpy as np
 
@@ -37,6 +41,10 @@ from catenary.arrays import BoolArray, FloatArray, UInt8Array, UInt16Array
 __all__ = ["AssembledScans", "CameraCounts", "ScanAssembler"]
 
 Lines = UInt8Array | UInt16Array
+
+RESYNC_FRAMES: Final = 8
+"""Free-running: a camera is placed by time again when its last frames' times all place it
+more than ``resync_lines`` after where its ids do (or one places it before)."""
 
 
 @dataclass
@@ -72,6 +80,8 @@ class _Camera:
     frames: list[tuple[int, Lines]] = field(default_factory=list)  # (first scan, lines)
     last_id: int | None = None
     next_scan: int = 0  # where the next consecutive frame starts
+    # how far [lines] the last frames' times place them after their ids (free-running)
+    late: deque[float] = field(default_factory=lambda: deque(maxlen=RESYNC_FRAMES))
     counts: CameraCounts = field(default_factory=CameraCounts)
 
 
@@ -96,8 +106,7 @@ class ScanAssembler:
         Frame ids run ``1 .. modulus`` and wrap (GigE Vision: 65535); None: they never wrap.
     resync_lines : float
         Free-running: how far [lines] a frame's ids may place it from its time (the stream
-        allows a quarter of a frame: timestamps jitter, and a camera's line clock drifts
-        from the nominal rate by a line every few seconds at a few hundred ppm).
+        allows a quarter of a frame).
     """
 
     def __init__(
@@ -148,12 +157,17 @@ class ScanAssembler:
             # ids gone back (half the id range back, when they wrap): a restarted camera
             by_time = step < 0 or (self._modulus is not None and step > self._modulus // 2)
             first = camera.next_scan + (step - 1) * n
-            if not by_time and not self.encoder and abs(first - measured) > self._resync_lines:
-                first = round(measured)
-                camera.counts.resyncs += 1
+            if not by_time and not self.encoder:
+                camera.late.append(measured - first)
+                late = min(camera.late)  # stamps come late, never early: the least is right
+                if abs(late) > self._resync_lines:
+                    first += round(late)
+                    camera.late.clear()
+                    camera.counts.resyncs += 1
         if by_time:
             quantum = n if self.encoder else 1
             first = quantum * round(measured / quantum)
+            camera.late.clear()
         camera.last_id = frame_id
         if lines is None:
             camera.counts.incomplete_frames += 1

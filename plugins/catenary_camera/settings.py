@@ -16,6 +16,10 @@ Keys of the source's settings (``--source-option KEY=VALUE`` or ``[record] sourc
 ``timeout_s``            a camera that delivers nothing this long is taken as dropped off and
                          reconnected [s] (2.0)
 ``reconnect_interval_s`` the wait between reconnection attempts [s] (1.0)
+``synchronized_clocks``  the cameras' timestamps are on one clock (IEEE 1588 PTP, GigE Vision
+                         2): frames are placed by them, every camera alike (false: each
+                         camera's clock is mapped to the host's by its frames' arrival, which
+                         aligns the cameras only to within their network latencies' spread)
 ``nominal_rate_hz``      the run header's ``scan_rate_hz`` with ``encoder`` trigger (line rate
                          at the line speed; default: ``line_rate_hz`` if given, else 1000)
 ``line``, ``track``, ``vehicle``  run identifiers (``""``)
@@ -69,6 +73,7 @@ TOP_KEYS: Final = frozenset(
         "buffers",
         "timeout_s",
         "reconnect_interval_s",
+        "synchronized_clocks",
         "nominal_rate_hz",
         "line",
         "track",
@@ -114,6 +119,7 @@ class GigeSettings:
     buffers: int = 32
     timeout_s: float = 2.0
     reconnect_interval_s: float = 1.0
+    synchronized_clocks: bool = False
     nominal_rate_hz: float = 1000.0
     line: str = ""
     track: str = ""
@@ -238,6 +244,9 @@ def parse_settings(settings: Mapping[str, Any]) -> GigeSettings:
     start = settings.get("start_chainage_m", 0.0)
     if isinstance(start, bool) or not isinstance(start, int | float) or not math.isfinite(start):
         raise _bad("start_chainage_m", start, "a finite number")
+    synchronized = settings.get("synchronized_clocks", False)
+    if not isinstance(synchronized, bool):
+        raise _bad("synchronized_clocks", synchronized, "true or false")
     names = {}
     for key in ("line", "track", "vehicle"):
         value = settings.get(key, "")
@@ -259,6 +268,7 @@ def parse_settings(settings: Mapping[str, Any]) -> GigeSettings:
         reconnect_interval_s=float(
             _positive("reconnect_interval_s", settings.get("reconnect_interval_s", 1.0))
         ),
+        synchronized_clocks=synchronized,
         nominal_rate_hz=nominal,
         direction=direction,
         start_chainage_m=float(start),

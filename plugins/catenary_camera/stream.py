@@ -16,7 +16,8 @@ whenever every connected camera has delivered its lines.
 **Dropping off.** A camera that delivers nothing for ``timeout_s`` (or whose heartbeat
 Aravis loses) is disconnected and reconnected every ``reconnect_interval_s``, while the
 others record on: the scans it misses are handed out without its line (``valid = False``).
-Back, its first frame is placed by time again.
+Back, its first :data:`PREROLL_FRAMES` frames teach its clock again (as when recording
+started; their lines are not kept) and the next is placed by time.
 
 **Positions.** Free-running: ``position_m`` is NaN and the stream declares
 ``positions_from_encoder``: the recorder interpolates the CAN encoder to the scan times.
@@ -30,6 +31,7 @@ camera), :meth:`GigeStream.summary` the final one with each camera's clock offse
 
 from __future__ import annotations
 
+import dataclasses
 import queue
 import threading
 import time
@@ -40,18 +42,20 @@ from typing import Any
 
 import numpy as np
 
+from catenary.arrays import FloatArray
 from catenary.domain import CameraLines, RunHeader, ScanBlock, VehicleSamples
 from catenary.errors import UserError
 
 from .assembly import CameraCounts, ScanAssembler
 from .backend import CameraBackend, CameraUnavailable, Frame
-from .clock import ClockFit, ClockTracker
+from .clock import ClockFit, ClockTracker, fit_clock
 from .pixels import PIXEL_FORMATS, unpack_lines
 from .settings import CameraSettings, GigeSettings, parse_settings
 
 __all__ = ["GigeStream", "open_gige"]
 
 READ_TIMEOUT_S = 0.05  # a reader's longest wait for a frame before it checks for stop
+PREROLL_FRAMES = 8  # frames of each camera read into its clock tracker before recording
 
 
 def _dtype(pixel_format: str) -> np.dtype[np.uint8] | np.dtype[np.uint16]:
@@ -86,6 +90,7 @@ class _Reader(threading.Thread):
         backend: CameraBackend,
         settings: GigeSettings,
         out: queue.Queue[_Placed | _Link],
+        clock: ClockTracker,
     ) -> None:
         super().__init__(name=f"gige-{camera.name}", daemon=True)
         self.camera = camera
@@ -93,13 +98,21 @@ class _Reader(threading.Thread):
         self._settings = settings
         self._out = out
         self.stop = threading.Event()
-        self.clock = ClockTracker()
+        self.clock = clock
+        # the mapping that places frames: the clock's fit when recording started (its later
+        # refits are reported, not used, so frames never move as estimates settle); shared by
+        # every camera when their clocks are synchronized; None: the next frame's fit
+        self.placing: ClockFit | None = None
         self.reconnections = 0
         self.last_error = ""
 
-    def place(self, frame: Frame) -> _Placed:
-        """Map the frame's time to the host clock and unpack its lines."""
-        self.clock.add(frame.device_time_s, frame.host_time_s)
+    def place(self, frame: Frame, *, tracked: bool = False) -> _Placed:
+        """Map the frame's time to the host clock (``tracked``: its times are in the
+        tracker already) and unpack its lines."""
+        if not tracked:
+            self.clock.add(frame.device_time_s, frame.host_time_s)
+        if self.placing is None:
+            self.placing = self.clock.fit
         lines = None
         if frame.complete and frame.data is not None:
             try:
@@ -109,9 +122,11 @@ class _Reader(threading.Thread):
             if lines is not None and lines.shape[0] != self._settings.lines_per_frame:
                 self.last_error = f"frame of {lines.shape[0]} lines"
                 lines = None
-        return _Placed(
-            self.camera.name, frame.frame_id, self.clock.to_host(frame.device_time_s), lines
-        )
+        return _Placed(self.camera.name, frame.frame_id, self._host_s(frame.device_time_s), lines)
+
+    def _host_s(self, device_s: float) -> float:
+        assert self.placing is not None  # place() set it
+        return self.placing.to_host(device_s)
 
     def _send(self, item: _Placed | _Link) -> None:
         """Queue ``item``, waiting while the queue is full (the frames then wait in the
@@ -124,33 +139,46 @@ class _Reader(threading.Thread):
                 continue
 
     def run(self) -> None:
-        timeout_s = self._settings.timeout_s
+        settings = self._settings
         connected, last_frame = True, time.monotonic()  # open_gige connected it
+        settling, previous = 0, None  # after a reconnection: frames to read before placing
         while not self.stop.is_set():
             if not connected:
                 try:
                     self.backend.connect()
                 except (CameraUnavailable, UserError) as exc:
                     self.last_error = str(exc)
-                    self.stop.wait(self._settings.reconnect_interval_s)
+                    self.stop.wait(settings.reconnect_interval_s)
                     continue
                 connected, last_frame = True, time.monotonic()
+                settling, previous = PREROLL_FRAMES, None
                 self.reconnections += 1
-                self.clock = ClockTracker()  # a restarted camera may have reset its clock
-                self._send(_Link(self.camera.name, "up"))
+                if not settings.synchronized_clocks:  # a restarted camera's own clock
+                    self.clock, self.placing = ClockTracker(), None  # may have been reset
             try:
                 frame = self.backend.read(READ_TIMEOUT_S)
-                if frame is None and time.monotonic() - last_frame > timeout_s:
-                    raise CameraUnavailable(f"no frame for {timeout_s:g} s")
+                if frame is None and time.monotonic() - last_frame > settings.timeout_s:
+                    raise CameraUnavailable(f"no frame for {settings.timeout_s:g} s")
             except CameraUnavailable as exc:
                 self.backend.disconnect()
                 connected = False
                 self.last_error = str(exc)
                 self._send(_Link(self.camera.name, "down", str(exc)))
                 continue
-            if frame is not None:
-                last_frame = time.monotonic()
+            if frame is None:
+                continue
+            last_frame = time.monotonic()
+            if not settling:
                 self._send(self.place(frame))
+                continue
+            # back: its clock is learnt again as when recording started (_preroll)
+            self.clock.add(frame.device_time_s, frame.host_time_s)
+            if previous is not None and settings.trigger == "free":
+                frame = _steadied(frame, previous, settings, self.backend.frame_id_modulus)
+            previous, settling = frame, settling - 1
+            if not settling:
+                self._send(_Link(self.camera.name, "up"))
+                self._send(self.place(frame, tracked=True))
         self.backend.disconnect()
 
 
@@ -162,6 +190,8 @@ class GigeStream:
         settings: GigeSettings,
         backends: Mapping[str, CameraBackend],
         first: Mapping[str, Frame],
+        clocks: Mapping[str, ClockTracker],
+        pairs: Mapping[str, tuple[FloatArray, FloatArray]],
     ) -> None:
         self.settings = settings
         self.positions_from_encoder = settings.trigger == "free"
@@ -171,10 +201,17 @@ class GigeStream:
         )
         cameras = {c.name: c for c in settings.cameras}
         self._readers = {
-            name: _Reader(cameras[name], backend, settings, self._queue)
+            name: _Reader(cameras[name], backend, settings, self._queue, clocks[name])
             for name, backend in backends.items()
         }
-        placed = [self._readers[name].place(frame) for name, frame in first.items()]
+        if settings.synchronized_clocks:  # one mapping for all: the cameras' pairs together
+            shared = fit_clock(
+                np.concatenate([device for device, _ in pairs.values()]),
+                np.concatenate([host for _, host in pairs.values()]),
+            )
+            for reader in self._readers.values():
+                reader.placing = shared
+        placed = [self._readers[n].place(frame, tracked=True) for n, frame in first.items()]
         self.clock_zero_unix_s = max(p.time_s for p in placed)
         modulus = {backend.frame_id_modulus for backend in backends.values()}
         self._assembler = ScanAssembler(
@@ -331,25 +368,54 @@ class GigeStream:
             reader.join()
 
 
-def _first_frames(
+def _steadied(frame: Frame, before: Frame, settings: GigeSettings, modulus: int | None) -> Frame:
+    """``frame`` with the earliest device time that it or ``before`` (already steadied)
+    gives it, counting free-running lines by frame id: a frame is stamped when it is sent,
+    which a busy camera or host delays, never advances; None of this for a frame id gap of
+    more than one frame (nothing to count on)."""
+    step = frame.frame_id - before.frame_id
+    if modulus is not None:
+        step %= modulus
+    if step != 1:
+        return frame
+    expected = before.device_time_s + settings.lines_per_frame / settings.nominal_rate_hz
+    return dataclasses.replace(frame, device_time_s=min(frame.device_time_s, expected))
+
+
+def _preroll(
     settings: GigeSettings, backends: Mapping[str, CameraBackend]
-) -> dict[str, Frame]:
-    """Wait for one frame of every camera (``timeout_s`` each); ``UserError`` naming the
-    camera that gives none."""
+) -> tuple[dict[str, Frame], dict[str, ClockTracker], dict[str, tuple[FloatArray, FloatArray]]]:
+    """Read :data:`PREROLL_FRAMES` frames of every camera into its clock tracker, so that the
+    host times of the frames recorded do not move as the first estimates of the clock
+    offset settle; returns each camera's last frame (the first one recorded), its tracker and
+    its (device, host) time pairs [s].
+    ``UserError`` naming a camera that gives no frame in ``timeout_s``."""
     cameras = {c.name: c for c in settings.cameras}
-    first = {}
-    for name, backend in backends.items():
-        deadline = time.monotonic() + settings.timeout_s
-        frame = None
-        while frame is None and time.monotonic() < deadline:
-            frame = backend.read(READ_TIMEOUT_S)
-        if frame is None:
-            raise UserError(
-                f"source 'gige': camera {cameras[name].device} delivered no frame in "
-                f"{settings.timeout_s:g} s (trigger {settings.trigger!r})"
-            )
-        first[name] = frame
-    return first
+    trackers = {name: ClockTracker() for name in backends}
+    frames: dict[str, Frame] = {}
+    times: dict[str, list[tuple[float, float]]] = {name: [] for name in backends}
+    waiting_since = dict.fromkeys(backends, time.monotonic())
+    while min(len(t) for t in times.values()) < PREROLL_FRAMES:
+        for name, backend in backends.items():
+            frame = backend.read(0.01)
+            now = time.monotonic()
+            if frame is None:
+                if now - waiting_since[name] > settings.timeout_s:
+                    raise UserError(
+                        f"source 'gige': camera {cameras[name].device} delivered no frame in "
+                        f"{settings.timeout_s:g} s (trigger {settings.trigger!r})"
+                    )
+                continue
+            trackers[name].add(frame.device_time_s, frame.host_time_s)
+            times[name].append((frame.device_time_s, frame.host_time_s))
+            if settings.trigger == "free" and name in frames:  # its time by the earlier ones
+                frame = _steadied(frame, frames[name], settings, backend.frame_id_modulus)
+            frames[name], waiting_since[name] = frame, now
+    pairs = {
+        name: (np.array([d for d, _ in t]), np.array([h for _, h in t]))
+        for name, t in times.items()
+    }
+    return frames, trackers, pairs
 
 
 def open_gige(
@@ -373,9 +439,9 @@ def open_gige(
                 backends[camera.name].connect()
             except CameraUnavailable as exc:
                 raise UserError(f"source 'gige': {exc}") from None
-        first = _first_frames(parsed, backends)
+        first, clocks, pairs = _preroll(parsed, backends)
     except BaseException:
         for opened in backends.values():
             opened.disconnect()
         raise
-    return GigeStream(parsed, backends, first)
+    return GigeStream(parsed, backends, first, clocks, pairs)
