@@ -111,8 +111,6 @@ class _Reader(threading.Thread):
         tracker already) and unpack its lines."""
         if not tracked:
             self.clock.add(frame.device_time_s, frame.host_time_s)
-        if self.placing is None:
-            self.placing = self.clock.fit
         lines = None
         if frame.complete and frame.data is not None:
             try:
@@ -125,8 +123,8 @@ class _Reader(threading.Thread):
         return _Placed(self.camera.name, frame.frame_id, self._host_s(frame.device_time_s), lines)
 
     def _host_s(self, device_s: float) -> float:
-        assert self.placing is not None  # place() set it
-        return self.placing.to_host(device_s)
+        assert self.placing is not None  # set from the pre-roll (GigeStream) or settling
+        return float(self.placing.to_host(device_s))
 
     def _send(self, item: _Placed | _Link) -> None:
         """Queue ``item``, waiting while the queue is full (the frames then wait in the
@@ -142,6 +140,7 @@ class _Reader(threading.Thread):
         settings = self._settings
         connected, last_frame = True, time.monotonic()  # open_gige connected it
         settling, previous = 0, None  # after a reconnection: frames to read before placing
+        pairs: list[tuple[float, float]] = []  # their (device, host) times [s]
         while not self.stop.is_set():
             if not connected:
                 try:
@@ -151,7 +150,7 @@ class _Reader(threading.Thread):
                     self.stop.wait(settings.reconnect_interval_s)
                     continue
                 connected, last_frame = True, time.monotonic()
-                settling, previous = PREROLL_FRAMES, None
+                settling, previous, pairs = PREROLL_FRAMES, None, []
                 self.reconnections += 1
                 if not settings.synchronized_clocks:  # a restarted camera's own clock
                     self.clock, self.placing = ClockTracker(), None  # may have been reset
@@ -173,10 +172,13 @@ class _Reader(threading.Thread):
                 continue
             # back: its clock is learnt again as when recording started (_preroll)
             self.clock.add(frame.device_time_s, frame.host_time_s)
+            pairs.append((frame.device_time_s, frame.host_time_s))
             if previous is not None and settings.trigger == "free":
                 frame = _steadied(frame, previous, settings, self.backend.frame_id_modulus)
             previous, settling = frame, settling - 1
             if not settling:
+                if self.placing is None:
+                    self.placing = fit_clock(*np.array(pairs).T)
                 self._send(_Link(self.camera.name, "up"))
                 self._send(self.place(frame, tracked=True))
         self.backend.disconnect()
@@ -204,13 +206,14 @@ class GigeStream:
             name: _Reader(cameras[name], backend, settings, self._queue, clocks[name])
             for name, backend in backends.items()
         }
+        shared = None
         if settings.synchronized_clocks:  # one mapping for all: the cameras' pairs together
             shared = fit_clock(
                 np.concatenate([device for device, _ in pairs.values()]),
                 np.concatenate([host for _, host in pairs.values()]),
             )
-            for reader in self._readers.values():
-                reader.placing = shared
+        for name, reader in self._readers.items():
+            reader.placing = shared or fit_clock(*pairs[name])
         placed = [self._readers[n].place(frame, tracked=True) for n, frame in first.items()]
         self.clock_zero_unix_s = max(p.time_s for p in placed)
         modulus = {backend.frame_id_modulus for backend in backends.values()}
@@ -322,7 +325,7 @@ class GigeStream:
 
     def clock_fits(self) -> dict[str, ClockFit | None]:
         """Each camera's clock against the host's (offset, drift, residual), if fitted."""
-        return {name: reader.clock.fit for name, reader in self._readers.items()}
+        return {name: reader.clock.fit() for name, reader in self._readers.items()}
 
     def status(self) -> str:
         """The live line: per camera its lines per second since the last call, lines lost
@@ -343,7 +346,7 @@ class GigeStream:
         lines = []
         for name, reader in self._readers.items():
             counts = self._assembler.counts(name)
-            fit = reader.clock.fit
+            fit = reader.clock.fit() or reader.placing
             clock = (
                 f"clock offset {fit.offset_s:+.6f} s, drift {fit.drift_ppm:+.2f} ppm, "
                 f"residual {fit.residual_s * 1e6:.0f} µs"

@@ -94,7 +94,12 @@ def record(stream: GigeStream, scans: int, block_scans: int = 50) -> list[ScanBl
 
 def joined(blocks: list[ScanBlock], name: str) -> tuple[np.ndarray, np.ndarray]:
     lines = np.concatenate([b.cameras[name].lines for b in blocks])
-    valid = np.concatenate([b.cameras[name].valid for b in blocks])  # type: ignore[misc]
+    valid = np.concatenate(
+        [
+            np.ones(b.scans, dtype=bool) if (v := b.cameras[name].valid) is None else v
+            for b in blocks
+        ]
+    )
     return lines, valid
 
 
@@ -318,7 +323,8 @@ def test_simulated_lines_arrive_bit_for_bit_in_their_scans(
     cameras: dict[str, FakeCamera],
 ) -> None:
     lines = simulated_lines({"length_m": 30.0, "seed": 11, "scan_rate_hz": RATE_HZ})
-    first_line = (int((time.time() + 1.5) * RATE_HZ) // LINES + 1) * LINES  # 1.5 s from now
+    # 6 s from now: after the cameras' clocks are learnt (8 frames of 0.4 s each)
+    first_line = (int((time.time() + 6.0) * RATE_HZ) // LINES + 1) * LINES
     for name, fake in cameras.items():
         fake.fill(from_line(lines[name], first_line), RATE_HZ)
     stream = open_gige(settings())
@@ -411,7 +417,7 @@ def test_a_recorded_simulated_run_processes_to_the_truth(
         line, track = f.attrs["line"], f.attrs["track"]
         start_chainage_m = float(f.attrs["start_chainage_m"])
     scans = lines["cam1"].shape[0]
-    first_line = (int((time.time() + 3.0) * RATE_HZ) // LINES + 1) * LINES
+    first_line = (int((time.time() + 8.0) * RATE_HZ) // LINES + 1) * LINES
     log = sensor_log(tmp_path / "can.blf", sim, first_line / RATE_HZ, lead_s=8.0)
     for name, fake in cameras.items():
         fake.fill(from_line(lines[name], first_line), RATE_HZ)
