@@ -456,6 +456,7 @@ def test_a_recorded_simulated_run_processes_to_the_truth(
     distance = np.where(truth["contact"] & truth["present"][scan], distance, np.inf)
     nearest = np.argmin(distance, axis=1)
     rows = np.arange(scan.shape[0])
-    good = (distance[rows, nearest] < 20.0) & ~samples["vehicle_fault"]
+    good = (distance[rows, nearest] < 20.0) & truth["running"][scan, nearest]
+    good &= ~samples["vehicle_fault"]  # as tests/measurement/test_process.py
     assert np.max(np.abs(samples["stagger_mm"] - truth["stagger_mm"][scan, nearest])[good]) < 2
     assert np.max(np.abs(samples["height_mm"] - truth["height_mm"][scan, nearest])[good]) < 2
