@@ -32,6 +32,7 @@ camera), :meth:`GigeStream.summary` the final one with each camera's clock offse
 from __future__ import annotations
 
 import dataclasses
+import math
 import queue
 import threading
 import time
@@ -105,12 +106,14 @@ class _Reader(threading.Thread):
         self.placing: ClockFit | None = None
         self.reconnections = 0
         self.last_error = ""
+        self.last_device_s = math.nan  # the device time of the last frame [s]
 
     def place(self, frame: Frame, *, tracked: bool = False) -> _Placed:
         """Map the frame's time to the host clock (``tracked``: its times are in the
         tracker already) and unpack its lines."""
         if not tracked:
             self.clock.add(frame.device_time_s, frame.host_time_s)
+        self.last_device_s = frame.device_time_s
         lines = None
         if frame.complete and frame.data is not None:
             try:
@@ -178,7 +181,7 @@ class _Reader(threading.Thread):
             previous, settling = frame, settling - 1
             if not settling:
                 if self.placing is None:
-                    self.placing = fit_clock(*np.array(pairs).T)
+                    self.placing = _placing(*np.array(pairs).T)
                 self._send(_Link(self.camera.name, "up"))
                 self._send(self.place(frame, tracked=True))
         self.backend.disconnect()
@@ -208,12 +211,12 @@ class GigeStream:
         }
         shared = None
         if settings.synchronized_clocks:  # one mapping for all: the cameras' pairs together
-            shared = fit_clock(
+            shared = _placing(
                 np.concatenate([device for device, _ in pairs.values()]),
                 np.concatenate([host for _, host in pairs.values()]),
             )
         for name, reader in self._readers.items():
-            reader.placing = shared or fit_clock(*pairs[name])
+            reader.placing = shared or _placing(*pairs[name])
         placed = [self._readers[n].place(frame, tracked=True) for n, frame in first.items()]
         self.clock_zero_unix_s = max(p.time_s for p in placed)
         modulus = {backend.frame_id_modulus for backend in backends.values()}
@@ -342,13 +345,16 @@ class GigeStream:
 
     def summary(self) -> str:
         """One line per camera: lines delivered and lost, incomplete frames, resyncs,
-        reconnections, clock offset and drift against the host."""
+        reconnections, its clock against the host's (offset at its last frame, drift and
+        the residual of the least-delay frames)."""
         lines = []
         for name, reader in self._readers.items():
             counts = self._assembler.counts(name)
             fit = reader.clock.fit() or reader.placing
+            now = reader.last_device_s
             clock = (
-                f"clock offset {fit.offset_s:+.6f} s, drift {fit.drift_ppm:+.2f} ppm, "
+                f"clock offset {float(fit.to_host(now)) - now:+.6f} s, drift "
+                f"{fit.drift_ppm:+.2f} ppm, "
                 f"residual {fit.residual_s * 1e6:.0f} µs"
                 if fit is not None
                 else "clock not fitted"
@@ -369,6 +375,16 @@ class GigeStream:
             reader.stop.set()
         for reader in self._readers.values():
             reader.join()
+
+
+def _placing(device_s: FloatArray, host_s: FloatArray) -> ClockFit:
+    """The mapping that places frames, from a few (device, host) time pairs [s]: their
+    clock fit's offset at the last of them, drift none. A second of pairs says little of
+    the drift (a few ms of delays over it are thousands of ppm), and the scans' clock is the
+    cameras' own: the drift only matters to the run's host time, fitted over the run."""
+    fit = fit_clock(device_s, host_s)
+    last = float(device_s.max())
+    return ClockFit(float(fit.to_host(last)) - last, 0.0, fit.residual_s, fit.samples)
 
 
 def _steadied(frame: Frame, before: Frame, settings: GigeSettings, modulus: int | None) -> Frame:
