@@ -168,11 +168,15 @@ def main(argv: list[str] | None = None) -> int:
         f"4 cameras x {args.width} px, {args.rate_hz:,.0f} lines/s each, "
         f"{args.lines_per_frame} lines per frame, packets of {args.packet_size} B"
     )
-    print(f"{'camera':8} {'lines':>10} {'lost':>8} {'incomplete frames':>18} {'resyncs':>8}")
+    print(
+        f"{'camera':8} {'lines':>10} {'lost':>8} {'missing frames':>15} "
+        f"{'incomplete frames':>18} {'resyncs':>8}"
+    )
     for name, counts in result["counts"].items():
         print(
             f"{name:8} {counts['delivered']:>10,} {counts['lost']:>8,} "
-            f"{counts['incomplete_frames']:>18,} {counts['resyncs']:>8,}"
+            f"{counts['missing_frames']:>15,} {counts['incomplete_frames']:>18,} "
+            f"{counts['resyncs']:>8,}"
         )
     print(
         f"scans recorded        {scans:,} in {result['wall_s']:.1f} s "

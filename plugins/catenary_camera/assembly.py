@@ -54,6 +54,7 @@ class CameraCounts:
     delivered: int = 0  # valid lines handed out in scans
     lost: int = 0  # scans handed out without this camera's line
     incomplete_frames: int = 0  # frames that arrived incomplete (their lines invalid)
+    missing_frames: int = 0  # frames that never arrived (frame ids skipped)
     late_lines: int = 0  # lines that arrived after their scans were handed out (dropped)
     resyncs: int = 0  # frames placed by time again (free-running lines)
 
@@ -157,6 +158,8 @@ class ScanAssembler:
             # ids gone back (half the id range back, when they wrap): a restarted camera
             by_time = step < 0 or (self._modulus is not None and step > self._modulus // 2)
             first = camera.next_scan + (step - 1) * n
+            if not by_time:
+                camera.counts.missing_frames += step - 1
             if not by_time and not self.encoder:
                 camera.late.append(measured - first)
                 late = min(camera.late)  # stamps come late, never early: the least is right

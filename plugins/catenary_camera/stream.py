@@ -361,8 +361,9 @@ class GigeStream:
             )
             lines.append(
                 f"camera {reader.camera.device}: {counts.delivered:,} lines, {counts.lost:,} "
-                f"lost ({counts.incomplete_frames} incomplete frames, {counts.late_lines} late "
-                f"lines, {counts.resyncs} resyncs), {reader.reconnections} reconnections, "
+                f"lost ({counts.missing_frames} missing and {counts.incomplete_frames} "
+                f"incomplete frames, {counts.late_lines} late lines, {counts.resyncs} resyncs), "
+                f"{reader.reconnections} reconnections, "
                 f"{clock}" + (f"; last problem: {reader.last_error}" if reader.last_error else "")
             )
         return "\n".join(lines)

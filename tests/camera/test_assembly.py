@@ -58,7 +58,7 @@ def test_a_lost_frame_leaves_exactly_its_lines_invalid() -> None:
     expected[5 * N :] = False
     np.testing.assert_array_equal(scans.valid["a"], expected)
     check_in_place(scans.lines["a"], scans.valid["a"])
-    assert asm.counts("a").incomplete_frames == 1
+    assert asm.counts("a").incomplete_frames == 1 and asm.counts("a").missing_frames == 1
     assert asm.counts("b").lost == 6 * N  # b delivered nothing
 
 
