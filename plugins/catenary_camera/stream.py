@@ -1,17 +1,21 @@
 """The ``gige`` acquisition: the rig's cameras read together into blocks of scans.
 
-:func:`open_gige` connects every camera, configures it and starts it, then waits for the
-first frame of each (``timeout_s``): the run's scan 0 is the first line that every camera
-delivers, and :attr:`GigeStream.clock_zero_unix_s` is its host time (the recorder aligns the
-CAN bus's clock to it). A camera that cannot be opened, refuses a setting or delivers
-nothing is one line naming it.
+:func:`open_gige` connects every camera, configures it and starts it, then reads
+:data:`PREROLL_FRAMES` frames of each (a camera that gives none in ``timeout_s`` is one line
+naming it, as is one that cannot be opened or refuses a setting). Their (device, host) time
+pairs give the offset that maps the camera's timestamps to the host clock for placing its
+frames (the least-delay fit of :func:`~catenary_camera.clock.fit_clock`, its drift left out:
+the scans' clock is the cameras'; with ``synchronized_clocks`` one offset from all cameras'
+pairs); each frame's time is also the earliest its predecessors allow (stamps come late,
+never early). The run's scan 0 is the last of those frames that comes, and
+:attr:`GigeStream.clock_zero_unix_s` its host time (the recorder aligns the CAN bus to it).
 
 One reader thread per camera pops its frames (:class:`~catenary_camera.backend.CameraBackend`),
-maps their timestamps to the host clock (:class:`~catenary_camera.clock.ClockTracker`: offset
-and drift per camera, reported), unpacks their pixels
-(:func:`~catenary_camera.pixels.unpack_lines`) and queues them; the caller's thread places
-them into scans (:class:`~catenary_camera.assembly.ScanAssembler`) and yields a block
-whenever every connected camera has delivered its lines.
+feeds their times to a :class:`~catenary_camera.clock.ClockTracker` (offset and drift over
+the run, reported), unpacks their pixels (:func:`~catenary_camera.pixels.unpack_lines`) and
+queues them (a bounded queue: frames wait in the backend's buffers beyond it); the caller's
+thread places them into scans (:class:`~catenary_camera.assembly.ScanAssembler`) and yields
+a block whenever every connected camera has delivered its lines.
 
 **Dropping off.** A camera that delivers nothing for ``timeout_s`` (or whose heartbeat
 Aravis loses) is disconnected and reconnected every ``reconnect_interval_s``, while the
@@ -26,7 +30,8 @@ id, so the index keeps counting the encoder's pulses), and the recorder checks i
 the CAN encoder.
 
 :meth:`GigeStream.status` is the live line (lines per second, lines lost and link state per
-camera), :meth:`GigeStream.summary` the final one with each camera's clock offset and drift.
+camera), :meth:`GigeStream.summary` the final one per camera: lines, lines lost (frames
+missing, frames incomplete, late lines, resyncs), reconnections, clock offset and drift.
 """
 
 from __future__ import annotations
