@@ -30,6 +30,7 @@ camera past it, or a camera that dropped off given up for those scans).
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Final
@@ -42,7 +43,7 @@ __all__ = ["AssembledScans", "CameraCounts", "ScanAssembler"]
 
 Lines = UInt8Array | UInt16Array
 
-RESYNC_FRAMES: Final = 8
+RESYNC_FRAMES: Final = 32
 """Free-running: a camera is placed by time again when its last frames' times all place it
 more than ``resync_lines`` after where its ids do (or one places it before)."""
 
@@ -142,12 +143,16 @@ class ScanAssembler:
         """Forget ``name``'s frame ids (it reconnected): its next frame is placed by time."""
         self._cameras[name].last_id = None
 
-    def add(self, name: str, frame_id: int, time_s: float, lines: Lines | None) -> None:
+    def add(self, name: str, frame_id: int, time_s: float | None, lines: Lines | None) -> None:
         """A frame of ``name``: its id, its first line's host time [s] and its lines
-        ``[N, W]`` (None: it arrived incomplete, its lines are invalid)."""
+        ``[N, W]``; an incomplete frame has lines None (invalid) and time None (a lost
+        leader leaves a buffer's stamp stale): it is placed by its id alone, if at all."""
         camera = self._cameras[name]
         n = self.lines_per_frame
-        measured = (time_s - self.start_s) * self.rate_hz  # scan of its first line, by time
+        if time_s is None and camera.last_id is None:
+            return  # nothing to place it by: its scans stay invalid for this camera
+        # the scan of its first line, by time
+        measured = math.nan if time_s is None else (time_s - self.start_s) * self.rate_hz
         by_time = camera.last_id is None
         if camera.last_id is not None:
             step = frame_id - camera.last_id
@@ -160,7 +165,7 @@ class ScanAssembler:
             first = camera.next_scan + (step - 1) * n
             if not by_time:
                 camera.counts.missing_frames += step - 1
-            if not by_time and not self.encoder:
+            if not by_time and not self.encoder and time_s is not None:
                 camera.late.append(measured - first)
                 late = min(camera.late)  # stamps come late, never early: the least is right
                 if abs(late) > self._resync_lines:
@@ -179,7 +184,7 @@ class ScanAssembler:
             camera.counts.late_lines += max(min(first + n, self.next_scan) - max(first, 0), 0)
         if skip < n and lines is not None:
             camera.frames.append((first + max(skip, 0), lines[max(skip, 0) :]))
-        if self.encoder and first >= self.next_scan:
+        if self.encoder and first >= self.next_scan and time_s is not None:
             self._anchors.append((first, time_s - self.start_s))
         camera.next_scan = max(camera.next_scan, first + n)
 

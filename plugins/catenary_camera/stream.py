@@ -74,7 +74,7 @@ class _Placed:
 
     name: str
     frame_id: int
-    time_s: float
+    time_s: float | None  # None: an incomplete frame, whose stamp may be stale
     lines: np.ndarray[Any, Any] | None
 
 
@@ -116,6 +116,8 @@ class _Reader(threading.Thread):
     def place(self, frame: Frame, *, tracked: bool = False) -> _Placed:
         """Map the frame's time to the host clock (``tracked``: its times are in the
         tracker already) and unpack its lines."""
+        if not frame.complete:  # a lost leader leaves the buffer's stamps stale
+            return _Placed(self.camera.name, frame.frame_id, None, None)
         if not tracked:
             self.clock.add(frame.device_time_s, frame.host_time_s)
         self.last_device_s = frame.device_time_s
@@ -178,6 +180,8 @@ class _Reader(threading.Thread):
             if not settling:
                 self._send(self.place(frame))
                 continue
+            if not frame.complete:  # its stamps may be stale: not one to learn from
+                continue
             # back: its clock is learnt again as when recording started (_preroll)
             self.clock.add(frame.device_time_s, frame.host_time_s)
             pairs.append((frame.device_time_s, frame.host_time_s))
@@ -223,7 +227,7 @@ class GigeStream:
         for name, reader in self._readers.items():
             reader.placing = shared or _placing(*pairs[name])
         placed = [self._readers[n].place(frame, tracked=True) for n, frame in first.items()]
-        self.clock_zero_unix_s = max(p.time_s for p in placed)
+        self.clock_zero_unix_s = max(p.time_s for p in placed if p.time_s is not None)
         modulus = {backend.frame_id_modulus for backend in backends.values()}
         self._assembler = ScanAssembler(
             {c.name: (c.width, _dtype(c.pixel_format)) for c in settings.cameras},
@@ -424,6 +428,8 @@ def _preroll(
         for name, backend in backends.items():
             frame = backend.read(0.01)
             now = time.monotonic()
+            if frame is not None and not frame.complete:  # stale stamps: not to learn from
+                frame = None
             if frame is None:
                 if now - waiting_since[name] > settings.timeout_s:
                     raise UserError(

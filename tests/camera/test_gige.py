@@ -73,7 +73,7 @@ def settings(**extra: object) -> dict[str, object]:
         },
         "line_rate_hz": RATE_HZ,
         "lines_per_frame": LINES,
-        "timeout_s": 1.0,
+        "timeout_s": 2.0,  # 5 frames: a few may come incomplete (packet loss)
         "reconnect_interval_s": 0.2,
         "synchronized_clocks": True,  # the fake cameras stamp their frames with the host's
         **extra,
@@ -264,7 +264,7 @@ def test_catenary_record_writes_a_run_file_with_valid_lines_and_encoder_position
     from catenary.cli import cli
     from catenary.measurement.runfile import open_run
 
-    cameras["cam4"].set_loss(2.0)
+    cameras["cam4"].set_loss(5.0)  # of packets of 1500 B: a quarter of the frames lose one
     log = can_log(tmp_path / "can.blf", time.time() - 5.0, 40.0, speed_mps=20.0)
     table = ", ".join(
         f'{name} = {{address = "{address}", width = {WIDTH}}}'
@@ -278,8 +278,10 @@ def test_catenary_record_writes_a_run_file_with_valid_lines_and_encoder_position
             "--source-option", f"cameras={{{table}}}",
             "--source-option", f"line_rate_hz={RATE_HZ}",
             "--source-option", f"lines_per_frame={LINES}",
+            "--source-option", "packet_size=1500", "--source-option", "timeout_s=2.0",
+            "--source-option", "synchronized_clocks=true",
             "--vehicle-source", "can", "--vehicle-option", f"log={log}",
-            "--max-scans", "300", "--block-scans", "100",
+            "--max-scans", "400", "--block-scans", "100",
         ],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
@@ -434,6 +436,7 @@ def test_a_recorded_simulated_run_processes_to_the_truth(
         "--source-option", f"lines_per_frame={LINES}",
         "--source-option", f"line='{line}'", "--source-option", f"track='{track}'",
         "--source-option", f"start_chainage_m={start_chainage_m}",
+        "--source-option", "synchronized_clocks=true",
         "--vehicle-source", "can", "--vehicle-option", f"log={log}",
         "--max-scans", wanted,
     )  # fmt: skip
