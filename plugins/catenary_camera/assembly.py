@@ -168,7 +168,8 @@ class ScanAssembler:
             if not by_time and not self.encoder and time_s is not None:
                 camera.late.append(measured - first)
                 late = min(camera.late)  # stamps come late, never early: the least is right
-                if abs(late) > self._resync_lines:
+                full = len(camera.late) == RESYNC_FRAMES
+                if late < -self._resync_lines or (full and late > self._resync_lines):
                     first += round(late)
                     camera.late.clear()
                     camera.counts.resyncs += 1

@@ -160,7 +160,7 @@ class _Reader(threading.Thread):
                     self.stop.wait(settings.reconnect_interval_s)
                     continue
                 connected, last_frame = True, time.monotonic()
-                settling, previous, pairs = PREROLL_FRAMES, None, []
+                settling, previous, pairs = PREROLL_FRAMES + 1, None, []  # + the first
                 self.reconnections += 1
                 if not settings.synchronized_clocks:  # a restarted camera's own clock
                     self.clock, self.placing = ClockTracker(), None  # may have been reset
@@ -179,6 +179,9 @@ class _Reader(threading.Thread):
             last_frame = time.monotonic()
             if not settling:
                 self._send(self.place(frame))
+                continue
+            if settling > PREROLL_FRAMES:  # the first frame after a start: maybe off the grid
+                settling -= 1
                 continue
             if not frame.complete:  # its stamps may be stale: not one to learn from
                 continue
@@ -414,7 +417,9 @@ def _steadied(frame: Frame, before: Frame, settings: GigeSettings, modulus: int 
 def _preroll(
     settings: GigeSettings, backends: Mapping[str, CameraBackend]
 ) -> tuple[dict[str, Frame], dict[str, ClockTracker], dict[str, tuple[FloatArray, FloatArray]]]:
-    """Read :data:`PREROLL_FRAMES` frames of every camera into its clock tracker, so that the
+    """Read :data:`PREROLL_FRAMES` frames of every camera into its clock tracker (after its
+    first frame, which some cameras, Aravis's fake one among them, send off their frame
+    period's grid, and leaving out incomplete ones, whose stamps may be stale), so that the
     host times of the frames recorded do not move as the first estimates of the clock
     offset settle; returns each camera's last frame (the first one recorded), its tracker and
     its (device, host) time pairs [s].
@@ -423,13 +428,16 @@ def _preroll(
     trackers = {name: ClockTracker() for name in backends}
     frames: dict[str, Frame] = {}
     times: dict[str, list[tuple[float, float]]] = {name: [] for name in backends}
+    started: set[str] = set()
     waiting_since = dict.fromkeys(backends, time.monotonic())
     while min(len(t) for t in times.values()) < PREROLL_FRAMES:
         for name, backend in backends.items():
             frame = backend.read(0.01)
             now = time.monotonic()
-            if frame is not None and not frame.complete:  # stale stamps: not to learn from
-                frame = None
+            if frame is not None and (not frame.complete or name not in started):
+                started.add(name)  # the first may be off the grid; an incomplete one's stamps
+                waiting_since[name] = now  # may be stale: neither is learnt from
+                continue
             if frame is None:
                 if now - waiting_since[name] > settings.timeout_s:
                     raise UserError(

@@ -112,8 +112,9 @@ class FakeCamera:
     def fill(self, content: Content | None, rate_hz: float = 1.0) -> None:
         """Fill frames with ``content`` (None: Aravis's own diagonal ramp) as a line-scan
         camera would: the lines go on from frame to frame, from those of the frame period
-        (at ``rate_hz``, from the UNIX epoch) that the first frame's timestamp falls in (the
-        fake camera sends frames on that grid, its first one late in its period)."""
+        (at ``rate_hz``, from the UNIX epoch) that the second frame's timestamp falls in.
+        The fake camera sends its frames on that grid but its first one anywhere (it holds
+        the lines of its own period; the gige source does not time by a first frame)."""
         if content is None:
             _LIB.arv_fake_camera_set_fill_pattern(self._pointer, _FILL(), None)
             self._callback = None
@@ -122,9 +123,10 @@ class FakeCamera:
         def fill(buffer: int, data: int, exposure: int, gain: int, pixel_format: int) -> None:
             width = _LIB.arv_buffer_get_image_width(buffer)
             height = _LIB.arv_buffer_get_image_height(buffer)
-            if self._next_line is None:  # the lines of the frame period it falls in
+            if self.frames < 2:  # the lines of the frame period it falls in
                 stamped = _LIB.arv_buffer_get_timestamp(buffer) * 1e-9 * rate_hz
                 self._next_line = int(stamped // height) * height
+            assert self._next_line is not None
             first, self._next_line = self._next_line, self._next_line + height
             lines = np.ascontiguousarray(content(first, height, width), dtype=np.uint8)
             target = _LIB.arv_buffer_get_data(buffer, None)

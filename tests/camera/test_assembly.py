@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from catenary_camera.assembly import ScanAssembler
+from catenary_camera.assembly import RESYNC_FRAMES, ScanAssembler
 
 N = 8  # lines per frame
 W = 6
@@ -71,14 +71,30 @@ def test_frame_ids_wrap_from_65535_to_1() -> None:
     check_in_place(scans.lines["a"], scans.valid["a"])
 
 
-def test_a_frame_whose_id_disagrees_with_its_time_is_placed_by_time() -> None:
+def test_frames_whose_times_all_disagree_with_their_ids_are_placed_by_time() -> None:
     asm = assembler()
     asm.add("a", 1, T0, frame(0))
-    asm.add("a", 2, T0 + 3 * N / RATE, frame(3 * N))  # id says next, time says 2 frames later
-    scans = asm.take(4 * N)
+    # from id 2 on, every frame comes 2 frames later than its id says (a line clock far off)
+    for k in range(1, RESYNC_FRAMES + 1):
+        asm.add("a", 1 + k, T0 + (k + 2) * N / RATE, frame((k + 2) * N))
     assert asm.counts("a").resyncs == 1
-    assert not scans.valid["a"][N : 3 * N].any() and scans.valid["a"][3 * N :].all()
+    asm.add(
+        "a", RESYNC_FRAMES + 2, T0 + (RESYNC_FRAMES + 3) * N / RATE, frame((RESYNC_FRAMES + 3) * N)
+    )
+    scans = asm.take(asm.reached("a"))
+    last = scans.lines["a"][-N:]  # the frames after the resync are where their times say
+    check_in_place(last, np.ones(N, dtype=bool), first=scans.scans - N)
+
+
+def test_one_late_stamp_moves_nothing_but_an_early_one_does() -> None:
+    asm = assembler()
+    for k in range(4):  # frame 2 stamped 3 frames late
+        asm.add("a", 1 + k, T0 + (k + (3 if k == 2 else 0)) * N / RATE, frame(k * N))
+    scans = asm.take(4 * N)
+    assert scans.valid["a"].all() and asm.counts("a").resyncs == 0
     check_in_place(scans.lines["a"], scans.valid["a"])
+    asm.add("a", 5, T0 + 2 * N / RATE, frame(2 * N))  # stamped before its predecessor's lines
+    assert asm.counts("a").resyncs == 1
 
 
 def test_lines_before_the_run_or_already_handed_out_are_dropped() -> None:
