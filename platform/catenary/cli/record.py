@@ -5,6 +5,7 @@
 from __future__ import annotations
 
 import sys
+import time
 import tomllib
 from collections.abc import Callable, Iterable, Mapping
 from contextlib import ExitStack
@@ -108,6 +109,32 @@ def _open_source(
     with registry.boundary(kind, name):
         stream = source.open(settings)
     return stream, registry.describe(kind, name)
+
+
+LIVE_STATUS_INTERVAL_S: Final = 1.0
+"""How often the live line of a source without a known length is shown [s]."""
+
+
+def _live_status(status: Callable[[], str]) -> Callable[[int], None]:
+    """A progress callback that shows a live source's ``status()`` line on standard error
+    at most every :data:`LIVE_STATUS_INTERVAL_S` (rewritten in place on a terminal, one line
+    every ten intervals in a log)."""
+    tty = sys.stderr.isatty()
+    interval_s = LIVE_STATUS_INTERVAL_S if tty else 10 * LIVE_STATUS_INTERVAL_S
+    shown = time.monotonic()
+    scans = 0
+
+    def show(n: int) -> None:
+        nonlocal shown, scans
+        scans += n
+        now = time.monotonic()
+        if now - shown < interval_s:
+            return
+        shown = now
+        line = f"{scans:,} scans | {status()}"
+        click.echo(f"\r{line}\x1b[K" if tty else line, err=True, nl=not tty)
+
+    return show
 
 
 def _close(stream: object) -> None:
@@ -230,6 +257,8 @@ def record(
                 )
             )
             progress = bar.update
+        elif callable(getattr(scan_stream, "status", None)):
+            progress = _live_status(scan_stream.status)
         result = record_run(
             out,
             scan_stream,
@@ -241,9 +270,10 @@ def record(
             scan_source=scan_label,
             vehicle_source=vehicle_label,
         )
-    summary = getattr(vehicle_stream, "summary", None)
-    if callable(summary):
-        click.echo(str(summary()))
+    for stream in (scan_stream, vehicle_stream):
+        summary = getattr(stream, "summary", None)
+        if callable(summary):
+            click.echo(str(summary()))
     if result.interrupted:
         how = "terminated" if result.terminated else "interrupted"
         click.echo(

@@ -1,0 +1,196 @@
+"""Benchmark: recording four GigE Vision line-scan cameras at the train's line rate.
+
+Four of Aravis's fake GigE Vision cameras (``arv-fake-gv-camera-0.8`` processes, one per
+loopback address 127.0.0.2-5, with a GenICam description widened to 4096 px) send their own
+test pattern (Aravis's diagonal ramp, Mono8) at 5,300 lines/s each: 250 km/h at 13 mm
+between lines. The recorder (the ``gige`` source through Aravis into
+:func:`catenary.measurement.recording.record_run`, writing the run file as it goes) runs in
+a child process at ``nice 10``, so that its own CPU time is measured apart from the cameras'.
+The fake cameras cannot be triggered by an encoder and give no CAN bus, so the benchmark
+gives every scan the position of an encoder-triggered line (scan index x 13 mm): it measures
+rate, not positions.
+
+Reported: scans recorded, each camera's lines lost (scans recorded without its line), the
+recorder's CPU time per scan and per camera line, the cameras' CPU time, the file's size.
+The target (issue 20): no line lost.
+
+    .venv/bin/python benchmarks/camera_rate.py                  # 20 s at 5,300 lines/s
+    .venv/bin/python benchmarks/camera_rate.py --seconds 60 --rate-hz 8000 --width 2048
+
+Needs the ``camera`` extra and the loopback addresses (``.ci/run`` adds them).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+
+from tests.camera.fakecam import ADDRESSES, missing_addresses, wide_genicam  # noqa: E402
+
+METRES_PER_LINE = 0.013
+
+
+def child(args: argparse.Namespace) -> None:
+    """Record (in the niced child): prints the counts as JSON."""
+    import numpy as np
+
+    from catenary.domain import ScanBlock
+    from catenary.measurement.recording import record_run
+    from catenary_camera.stream import GigeStream, open_gige
+
+    settings = json.loads(args.child)
+    stream = open_gige(settings)
+
+    class EncoderPositions:
+        """The stream with positions of encoder-triggered lines (module docstring)."""
+
+        header = stream.header
+
+        def __init__(self, inner: GigeStream) -> None:
+            self.inner = inner
+
+        def blocks(self, block_scans: int) -> Iterator[ScanBlock]:
+            for block in self.inner.blocks(block_scans):
+                index = np.arange(block.first_scan, block.first_scan + block.scans)
+                yield ScanBlock(
+                    block.first_scan,
+                    index * METRES_PER_LINE,
+                    block.time_s,
+                    block.cameras,
+                    block.vehicle,
+                )
+
+        def close(self) -> None:
+            self.inner.close()
+
+    scans = int(args.seconds * args.rate_hz)
+    started = time.monotonic()
+    try:
+        result = record_run(args.out, EncoderPositions(stream), max_scans=scans, block_scans=2048)
+    finally:
+        stream.close()
+    wall_s = time.monotonic() - started
+    counts = {name: vars(c) for name, c in stream.counts().items()}
+    print(json.dumps({"scans": result.scans, "wall_s": wall_s, "counts": counts}))
+    print(stream.summary(), file=sys.stderr)
+
+
+def start_cameras(genicam: Path) -> list[subprocess.Popen[bytes]]:
+    return [
+        subprocess.Popen(
+            ["arv-fake-gv-camera-0.8", "-i", address, "-s", f"BENCH{n}", "-g", str(genicam)],
+            stdout=subprocess.DEVNULL,
+        )
+        for n, address in enumerate(ADDRESSES, start=1)
+    ]
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU time of a running process [s] (``/proc/PID/stat``)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seconds", type=float, default=20.0, help="recording length [s]")
+    parser.add_argument("--rate-hz", type=float, default=5300.0, help="line rate per camera")
+    parser.add_argument("--width", type=int, default=4096, help="pixels per line")
+    parser.add_argument("--lines-per-frame", type=int, default=106, help="lines per frame (Height)")
+    parser.add_argument("--packet-size", type=int, default=8192, help="GVSP packet size [B]")
+    parser.add_argument("--child", help=argparse.SUPPRESS)
+    parser.add_argument("--out", help=argparse.SUPPRESS)
+    args = parser.parse_args(argv)
+    if args.child:
+        child(args)
+        return 0
+    missing = missing_addresses()
+    if missing:
+        print(f"loopback addresses missing: {', '.join(missing)} (run .ci/run)", file=sys.stderr)
+        return 1
+    settings: dict[str, Any] = {
+        "cameras": {
+            f"cam{n}": {"address": address, "width": args.width}
+            for n, address in enumerate(ADDRESSES, start=1)
+        },
+        "line_rate_hz": args.rate_hz,
+        "lines_per_frame": args.lines_per_frame,
+        "packet_size": args.packet_size,
+        "buffers": 64,
+        "synchronized_clocks": True,  # the fake cameras stamp frames with the host's clock
+    }
+    with tempfile.TemporaryDirectory(prefix="camera-rate-") as tmp:
+        genicam = wide_genicam(Path(tmp) / "fake-wide.xml")
+        out = Path(tmp) / "run.h5"
+        cameras = start_cameras(genicam)
+        try:
+            time.sleep(1.0)  # the cameras bind their sockets
+            cameras_cpu = [cpu_s(p.pid) for p in cameras]
+            started = time.monotonic()
+            recorder = subprocess.Popen(
+                [
+                    *(sys.executable, __file__, "--child", json.dumps(settings), "--out", str(out)),
+                    *(f"--seconds={args.seconds}", f"--rate-hz={args.rate_hz}"),
+                ],
+                stdout=subprocess.PIPE,
+                preexec_fn=lambda: os.nice(10),
+            )
+            assert recorder.stdout is not None
+            report = recorder.stdout.read()
+            _, status, usage = os.wait4(recorder.pid, 0)
+            wall_s = time.monotonic() - started
+            cameras_cpu = [cpu_s(p.pid) - c for p, c in zip(cameras, cameras_cpu, strict=True)]
+        finally:
+            for camera in cameras:
+                camera.send_signal(signal.SIGINT)
+            for camera in cameras:
+                camera.wait(timeout=10)
+        if status != 0:
+            print(f"recorder failed (status {status})", file=sys.stderr)
+            return 1
+        result = json.loads(report)
+        size_mb = out.stat().st_size / 1e6
+    scans = result["scans"]
+    recorder_cpu_s = usage.ru_utime + usage.ru_stime
+    print(
+        f"4 cameras x {args.width} px, {args.rate_hz:,.0f} lines/s each, "
+        f"{args.lines_per_frame} lines per frame, packets of {args.packet_size} B"
+    )
+    print(
+        f"{'camera':8} {'lines':>10} {'lost':>8} {'missing frames':>15} "
+        f"{'incomplete frames':>18} {'resyncs':>8}"
+    )
+    for name, counts in result["counts"].items():
+        print(
+            f"{name:8} {counts['delivered']:>10,} {counts['lost']:>8,} "
+            f"{counts['missing_frames']:>15,} {counts['incomplete_frames']:>18,} "
+            f"{counts['resyncs']:>8,}"
+        )
+    print(
+        f"scans recorded        {scans:,} in {result['wall_s']:.1f} s "
+        f"({scans / max(result['wall_s'], 1e-9):,.0f} scans/s; run file {size_mb:,.0f} MB)"
+    )
+    per_scan_us = recorder_cpu_s / max(scans, 1) * 1e6
+    print(
+        f"recorder CPU (nice 10) {recorder_cpu_s:.1f} s = {per_scan_us:.1f} "
+        f"µs per scan, {per_scan_us / 4:.2f} µs per camera line "
+        f"(start-up included; whole child {wall_s:.1f} s)"
+    )
+    print(f"fake cameras' CPU      {', '.join(f'{c:.1f}' for c in cameras_cpu)} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,54 @@
+"""What the ``gige`` source needs of a camera backend (Aravis today, GenTL later).
+
+A backend opens one rig camera, configures it from the same settings
+(:mod:`catenary_camera.settings`, through :mod:`catenary_camera.features`), starts its
+acquisition and hands out its frames one by one; the stream (:mod:`catenary_camera.stream`)
+does the rest (clocks, assembly, reconnection) the same way for every backend.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol
+
+__all__ = ["CameraBackend", "CameraUnavailable", "Frame"]
+
+
+class CameraUnavailable(Exception):
+    """The camera cannot be reached now (not found, connection lost): worth retrying."""
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One frame as the camera delivered it.
+
+    ``complete``: every packet arrived (else ``data`` is None: its lines are invalid).
+    ``device_time_s`` is the camera's timestamp of the frame [s, the camera's clock];
+    ``host_time_s`` the host's UNIX time when it started arriving [s].
+    """
+
+    frame_id: int
+    complete: bool
+    device_time_s: float
+    host_time_s: float
+    data: bytes | None
+
+
+class CameraBackend(Protocol):
+    """One rig camera (module docstring). Not thread-safe: one reader thread uses it."""
+
+    frame_id_modulus: int | None  # frame ids run 1 .. modulus and wrap; None: never wrap
+
+    def connect(self) -> None:
+        """Open the device, configure it and start acquiring. ``CameraUnavailable`` if it
+        cannot be reached, ``UserError`` if it refuses a setting."""
+        ...
+
+    def read(self, timeout_s: float) -> Frame | None:
+        """The next frame, or None if none came within ``timeout_s``. ``CameraUnavailable``
+        when the connection is lost."""
+        ...
+
+    def disconnect(self) -> None:
+        """Stop acquiring and release the device (safe to call twice or unconnected)."""
+        ...

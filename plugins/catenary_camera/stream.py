@@ -1,0 +1,486 @@
+"""The ``gige`` acquisition: the rig's cameras read together into blocks of scans.
+
+:func:`open_gige` connects every camera, configures it and starts it, then reads
+:data:`PREROLL_FRAMES` frames of each (a camera that gives none in ``timeout_s`` is one line
+naming it, as is one that cannot be opened or refuses a setting). Their (device, host) time
+pairs give the offset that maps the camera's timestamps to the host clock for placing its
+frames (the least-delay fit of :func:`~catenary_camera.clock.fit_clock`, its drift left out:
+the scans' clock is the cameras'; with ``synchronized_clocks`` one offset from all cameras'
+pairs); each frame's time is also the earliest its predecessors allow (stamps come late,
+never early). The run's scan 0 is the last of those frames that comes, and
+:attr:`GigeStream.clock_zero_unix_s` its host time (the recorder aligns the CAN bus to it).
+
+One reader thread per camera pops its frames (:class:`~catenary_camera.backend.CameraBackend`),
+feeds their times to a :class:`~catenary_camera.clock.ClockTracker` (offset and drift over
+the run, reported), unpacks their pixels (:func:`~catenary_camera.pixels.unpack_lines`) and
+queues them (a bounded queue: frames wait in the backend's buffers beyond it); the caller's
+thread places them into scans (:class:`~catenary_camera.assembly.ScanAssembler`) and yields
+a block whenever every connected camera has delivered its lines.
+
+**Dropping off.** A camera that delivers nothing for ``timeout_s`` (or whose heartbeat
+Aravis loses) is disconnected and reconnected every ``reconnect_interval_s``, while the
+others record on: the scans it misses are handed out without its line (``valid = False``).
+Back, its first :data:`PREROLL_FRAMES` frames teach its clock again (as when recording
+started; their lines are not kept) and the next is placed by time.
+
+**Positions.** Free-running: ``position_m`` is NaN and the stream declares
+``positions_from_encoder``: the recorder interpolates the CAN encoder to the scan times.
+Encoder-triggered: scan ``i`` is at ``i * metres_per_line`` (lost lines are counted by frame
+id, so the index keeps counting the encoder's pulses), and the recorder checks it against
+the CAN encoder.
+
+:meth:`GigeStream.status` is the live line (lines per second, lines lost and link state per
+camera), :meth:`GigeStream.summary` the final one per camera: lines, lines lost (frames
+missing, frames incomplete, late lines, resyncs), reconnections, clock offset and drift.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import queue
+import threading
+import time
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+import numpy as np
+
+from catenary.arrays import FloatArray
+from catenary.domain import CameraLines, RunHeader, ScanBlock, VehicleSamples
+from catenary.errors import UserError
+
+from .assembly import CameraCounts, ScanAssembler
+from .backend import CameraBackend, CameraUnavailable, Frame
+from .clock import ClockFit, ClockTracker, fit_clock
+from .pixels import PIXEL_FORMATS, unpack_lines
+from .settings import CameraSettings, GigeSettings, parse_settings
+
+__all__ = ["GigeStream", "open_gige"]
+
+READ_TIMEOUT_S = 0.05  # a reader's longest wait for a frame before it checks for stop
+PREROLL_FRAMES = 8  # frames of each camera read into its clock tracker before recording
+
+
+def _dtype(pixel_format: str) -> np.dtype[np.uint8] | np.dtype[np.uint16]:
+    return np.dtype(np.uint8) if PIXEL_FORMATS[pixel_format] <= 8 else np.dtype(np.uint16)
+
+
+@dataclass(frozen=True)
+class _Placed:
+    """A frame ready for the assembler: its id, first line's host time [s] and lines."""
+
+    name: str
+    frame_id: int
+    time_s: float | None  # None: an incomplete frame, whose stamp may be stale
+    lines: np.ndarray[Any, Any] | None
+
+
+@dataclass(frozen=True)
+class _Link:
+    """A camera's link changed state (``up`` after a (re)connection, ``down``)."""
+
+    name: str
+    state: str
+    reason: str = ""
+
+
+class _Reader(threading.Thread):
+    """Reads one camera, reconnecting it when it drops off (module docstring)."""
+
+    def __init__(
+        self,
+        camera: CameraSettings,
+        backend: CameraBackend,
+        settings: GigeSettings,
+        out: queue.Queue[_Placed | _Link],
+        clock: ClockTracker,
+    ) -> None:
+        super().__init__(name=f"gige-{camera.name}", daemon=True)
+        self.camera = camera
+        self.backend = backend
+        self._settings = settings
+        self._out = out
+        self.stop = threading.Event()
+        self.clock = clock
+        # the mapping that places frames: the clock's fit when recording started (its later
+        # refits are reported, not used, so frames never move as estimates settle); shared by
+        # every camera when their clocks are synchronized; None: the next frame's fit
+        self.placing: ClockFit | None = None
+        self.reconnections = 0
+        self.last_error = ""
+        self.last_device_s = math.nan  # the device time of the last frame [s]
+
+    def place(self, frame: Frame, *, tracked: bool = False) -> _Placed:
+        """Map the frame's time to the host clock (``tracked``: its times are in the
+        tracker already) and unpack its lines."""
+        if not frame.complete:  # a lost leader leaves the buffer's stamps stale
+            return _Placed(self.camera.name, frame.frame_id, None, None)
+        if not tracked:
+            self.clock.add(frame.device_time_s, frame.host_time_s)
+        self.last_device_s = frame.device_time_s
+        lines = None
+        if frame.complete and frame.data is not None:
+            try:
+                lines = unpack_lines(frame.data, self.camera.pixel_format, self.camera.width)
+            except ValueError as exc:  # a payload of another size: counted as incomplete
+                self.last_error = str(exc)
+            if lines is not None and lines.shape[0] != self._settings.lines_per_frame:
+                self.last_error = f"frame of {lines.shape[0]} lines"
+                lines = None
+        return _Placed(self.camera.name, frame.frame_id, self._host_s(frame.device_time_s), lines)
+
+    def _host_s(self, device_s: float) -> float:
+        assert self.placing is not None  # set from the pre-roll (GigeStream) or settling
+        return float(self.placing.to_host(device_s))
+
+    def _send(self, item: _Placed | _Link) -> None:
+        """Queue ``item``, waiting while the queue is full (the frames then wait in the
+        backend's buffers, and are lost, as id gaps, once those run out) unless stopped."""
+        while not self.stop.is_set():
+            try:
+                self._out.put(item, timeout=READ_TIMEOUT_S)
+                return
+            except queue.Full:
+                continue
+
+    def run(self) -> None:
+        settings = self._settings
+        connected, last_frame = True, time.monotonic()  # open_gige connected it
+        settling, previous = 0, None  # after a reconnection: frames to read before placing
+        pairs: list[tuple[float, float]] = []  # their (device, host) times [s]
+        while not self.stop.is_set():
+            if not connected:
+                try:
+                    self.backend.connect()
+                except (CameraUnavailable, UserError) as exc:
+                    self.last_error = str(exc)
+                    self.stop.wait(settings.reconnect_interval_s)
+                    continue
+                connected, last_frame = True, time.monotonic()
+                settling, previous, pairs = PREROLL_FRAMES + 1, None, []  # + the first
+                self.reconnections += 1
+                if not settings.synchronized_clocks:  # a restarted camera's own clock
+                    self.clock, self.placing = ClockTracker(), None  # may have been reset
+            try:
+                frame = self.backend.read(READ_TIMEOUT_S)
+                if frame is None and time.monotonic() - last_frame > settings.timeout_s:
+                    raise CameraUnavailable(f"no frame for {settings.timeout_s:g} s")
+            except CameraUnavailable as exc:
+                self.backend.disconnect()
+                connected = False
+                self.last_error = str(exc)
+                self._send(_Link(self.camera.name, "down", str(exc)))
+                continue
+            if frame is None:
+                continue
+            last_frame = time.monotonic()
+            if not settling:
+                self._send(self.place(frame))
+                continue
+            if settling > PREROLL_FRAMES:  # the first frame after a start: maybe off the grid
+                settling -= 1
+                continue
+            if not frame.complete:  # its stamps may be stale: not one to learn from
+                continue
+            # back: its clock is learnt again as when recording started (_preroll)
+            self.clock.add(frame.device_time_s, frame.host_time_s)
+            pairs.append((frame.device_time_s, frame.host_time_s))
+            if previous is not None and settings.trigger == "free":
+                frame = _steadied(frame, previous, settings, self.backend.frame_id_modulus)
+            previous, settling = frame, settling - 1
+            if not settling:
+                if self.placing is None:
+                    self.placing = _placing(*np.array(pairs).T)
+                self._send(_Link(self.camera.name, "up"))
+                self._send(self.place(frame, tracked=True))
+        self.backend.disconnect()
+
+
+class GigeStream:
+    """An open ``gige`` acquisition (the ``ScanStream`` protocol; module docstring)."""
+
+    def __init__(
+        self,
+        settings: GigeSettings,
+        backends: Mapping[str, CameraBackend],
+        first: Mapping[str, Frame],
+        clocks: Mapping[str, ClockTracker],
+        pairs: Mapping[str, tuple[FloatArray, FloatArray]],
+    ) -> None:
+        self.settings = settings
+        self.positions_from_encoder = settings.trigger == "free"
+        # frames in flight between the readers and the assembly: a few per camera buffer
+        self._queue: queue.Queue[_Placed | _Link] = queue.Queue(
+            maxsize=settings.buffers * len(backends)
+        )
+        cameras = {c.name: c for c in settings.cameras}
+        self._readers = {
+            name: _Reader(cameras[name], backend, settings, self._queue, clocks[name])
+            for name, backend in backends.items()
+        }
+        shared = None
+        if settings.synchronized_clocks:  # one mapping for all: the cameras' pairs together
+            shared = _placing(
+                np.concatenate([device for device, _ in pairs.values()]),
+                np.concatenate([host for _, host in pairs.values()]),
+            )
+        for name, reader in self._readers.items():
+            reader.placing = shared or _placing(*pairs[name])
+        placed = [self._readers[n].place(frame, tracked=True) for n, frame in first.items()]
+        self.clock_zero_unix_s = max(p.time_s for p in placed if p.time_s is not None)
+        modulus = {backend.frame_id_modulus for backend in backends.values()}
+        self._assembler = ScanAssembler(
+            {c.name: (c.width, _dtype(c.pixel_format)) for c in settings.cameras},
+            settings.lines_per_frame,
+            settings.nominal_rate_hz,
+            self.clock_zero_unix_s,
+            encoder=settings.trigger == "encoder",
+            frame_id_modulus=modulus.pop() if len(modulus) == 1 else None,
+            resync_lines=max(2.0, settings.lines_per_frame / 4),
+        )
+        self._links = {name: "up" for name in backends}
+        self._started = time.monotonic()
+        self._rate: dict[str, tuple[float, int]] = {}  # name: (monotonic, delivered) last read
+        started_at = datetime.fromtimestamp(self.clock_zero_unix_s, UTC)
+        self.header = RunHeader(
+            line=settings.line,
+            track=settings.track,
+            vehicle=settings.vehicle,
+            direction=settings.direction,
+            start_chainage_m=settings.start_chainage_m,
+            started_at=started_at.isoformat(timespec="microseconds").replace("+00:00", "Z"),
+            scan_rate_hz=settings.nominal_rate_hz,
+            scans=0,  # live: unknown
+            camera_pixels={c.name: c.width for c in settings.cameras},
+            camera_bit_depth={c.name: PIXEL_FORMATS[c.pixel_format] for c in settings.cameras},
+            camera_offset_px={c.name: c.offset_px for c in settings.cameras},
+        )
+        for frame in placed:
+            self._assembler.add(frame.name, frame.frame_id, frame.time_s, frame.lines)
+        for reader in self._readers.values():
+            reader.start()
+        self._closed = False
+
+    # -- scans ---------------------------------------------------------------------------
+
+    def _drain(self, wait_s: float) -> None:
+        """Take what the readers queued (waiting up to ``wait_s`` for the first item)."""
+        try:
+            item = self._queue.get(timeout=wait_s)
+        except queue.Empty:
+            return
+        while True:
+            if isinstance(item, _Link):
+                self._links[item.name] = item.state
+                if item.state == "up":
+                    self._assembler.restart(item.name)
+            else:
+                self._assembler.add(item.name, item.frame_id, item.time_s, item.lines)
+            try:
+                item = self._queue.get_nowait()
+            except queue.Empty:
+                return
+
+    def _ready(self) -> int:
+        """Scans every connected camera has delivered (a camera that is down holds none
+        back); none while every camera is down."""
+        up = [self._assembler.reached(n) for n, state in self._links.items() if state == "up"]
+        return min(up) if up else self._assembler.next_scan
+
+    def blocks(self, block_scans: int) -> Iterator[ScanBlock]:
+        """Stream the acquisition in blocks of ``block_scans`` scans until closed."""
+        if isinstance(block_scans, bool) or not isinstance(block_scans, int) or block_scans < 1:
+            raise ValueError(f"block_scans must be a positive integer, got {block_scans!r}")
+        if self._closed:
+            raise ValueError("gige stream is closed")
+        return self._blocks(block_scans)
+
+    def _blocks(self, block_scans: int) -> Iterator[ScanBlock]:
+        assembler = self._assembler
+        while not self._closed:
+            self._drain(READ_TIMEOUT_S)
+            while self._ready() - assembler.next_scan >= block_scans:
+                yield self._block(assembler.next_scan + block_scans)
+
+    def _block(self, upto: int) -> ScanBlock:
+        scans = self._assembler.take(upto)
+        settings = self.settings
+        index = np.arange(scans.first, scans.first + scans.scans, dtype=np.float64)
+        position_m = (
+            index * settings.metres_per_line
+            if settings.metres_per_line is not None
+            else np.full(scans.scans, np.nan)
+        )
+        cameras = {
+            c.name: CameraLines(
+                scans.lines[c.name],
+                PIXEL_FORMATS[c.pixel_format],
+                c.offset_px,
+                valid=scans.valid[c.name],
+            )
+            for c in settings.cameras
+        }
+        empty = np.zeros(0, dtype=np.float64)
+        return ScanBlock(
+            first_scan=scans.first,
+            position_m=position_m,
+            time_s=scans.time_s,
+            cameras=cameras,
+            vehicle=VehicleSamples(empty, empty, empty, empty),
+        )
+
+    # -- reporting -----------------------------------------------------------------------
+
+    def counts(self) -> dict[str, CameraCounts]:
+        """Each camera's running counts (lines delivered and lost, incomplete frames, ...)."""
+        return {name: self._assembler.counts(name) for name in self._readers}
+
+    def clock_fits(self) -> dict[str, ClockFit | None]:
+        """Each camera's clock against the host's (offset, drift, residual), if fitted."""
+        return {name: reader.clock.fit() for name, reader in self._readers.items()}
+
+    def status(self) -> str:
+        """The live line: per camera its lines per second since the last call, lines lost
+        and link state (``cam1 5300/s lost 0 up``)."""
+        now = time.monotonic()
+        parts = []
+        for name, state in self._links.items():
+            counts = self._assembler.counts(name)
+            then, before = self._rate.get(name, (self._started, 0))
+            rate = (counts.delivered - before) / max(now - then, 1e-9)
+            self._rate[name] = (now, counts.delivered)
+            parts.append(f"{name} {rate:,.0f}/s lost {counts.lost:,} {state}")
+        return " | ".join(parts)
+
+    def summary(self) -> str:
+        """One line per camera: lines delivered and lost, incomplete frames, resyncs,
+        reconnections, its clock against the host's (offset at its last frame, drift and
+        the residual of the least-delay frames)."""
+        lines = []
+        for name, reader in self._readers.items():
+            counts = self._assembler.counts(name)
+            fit = reader.clock.fit() or reader.placing
+            now = reader.last_device_s
+            clock = (
+                f"clock offset {float(fit.to_host(now)) - now:+.6f} s, drift "
+                f"{fit.drift_ppm:+.2f} ppm, "
+                f"residual {fit.residual_s * 1e6:.0f} µs"
+                if fit is not None
+                else "clock not fitted"
+            )
+            lines.append(
+                f"camera {reader.camera.device}: {counts.delivered:,} lines, {counts.lost:,} "
+                f"lost ({counts.missing_frames} missing and {counts.incomplete_frames} "
+                f"incomplete frames, {counts.late_lines} late lines, {counts.resyncs} resyncs), "
+                f"{reader.reconnections} reconnections, "
+                f"{clock}" + (f"; last problem: {reader.last_error}" if reader.last_error else "")
+            )
+        return "\n".join(lines)
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        for reader in self._readers.values():
+            reader.stop.set()
+        for reader in self._readers.values():
+            reader.join()
+
+
+def _placing(device_s: FloatArray, host_s: FloatArray) -> ClockFit:
+    """The mapping that places frames, from a few (device, host) time pairs [s]: their
+    clock fit's offset at the last of them, drift none. A second of pairs says little of
+    the drift (a few ms of delays over it are thousands of ppm), and the scans' clock is the
+    cameras' own: the drift only matters to the run's host time, fitted over the run."""
+    fit = fit_clock(device_s, host_s)
+    last = float(device_s.max())
+    return ClockFit(float(fit.to_host(last)) - last, 0.0, fit.residual_s, fit.samples)
+
+
+def _steadied(frame: Frame, before: Frame, settings: GigeSettings, modulus: int | None) -> Frame:
+    """``frame`` with the earliest device time that it or ``before`` (already steadied)
+    gives it, counting free-running lines by frame id: a frame is stamped when it is sent,
+    which a busy camera or host delays, never advances; None of this for a frame id gap of
+    more than one frame (nothing to count on)."""
+    step = frame.frame_id - before.frame_id
+    if modulus is not None:
+        step %= modulus
+    if step != 1:
+        return frame
+    expected = before.device_time_s + settings.lines_per_frame / settings.nominal_rate_hz
+    return dataclasses.replace(frame, device_time_s=min(frame.device_time_s, expected))
+
+
+def _preroll(
+    settings: GigeSettings, backends: Mapping[str, CameraBackend]
+) -> tuple[dict[str, Frame], dict[str, ClockTracker], dict[str, tuple[FloatArray, FloatArray]]]:
+    """Read :data:`PREROLL_FRAMES` frames of every camera into its clock tracker (after its
+    first frame, which some cameras, Aravis's fake one among them, send off their frame
+    period's grid, and leaving out incomplete ones, whose stamps may be stale), so that the
+    host times of the frames recorded do not move as the first estimates of the clock
+    offset settle; returns each camera's last frame (the first one recorded), its tracker and
+    its (device, host) time pairs [s].
+    ``UserError`` naming a camera that gives no frame in ``timeout_s``."""
+    cameras = {c.name: c for c in settings.cameras}
+    trackers = {name: ClockTracker() for name in backends}
+    frames: dict[str, Frame] = {}
+    times: dict[str, list[tuple[float, float]]] = {name: [] for name in backends}
+    started: set[str] = set()
+    waiting_since = dict.fromkeys(backends, time.monotonic())
+    while min(len(t) for t in times.values()) < PREROLL_FRAMES:
+        for name, backend in backends.items():
+            frame = backend.read(0.01)
+            now = time.monotonic()
+            if frame is not None and (not frame.complete or name not in started):
+                started.add(name)  # the first may be off the grid; an incomplete one's stamps
+                waiting_since[name] = now  # may be stale: neither is learnt from
+                continue
+            if frame is None:
+                if now - waiting_since[name] > settings.timeout_s:
+                    raise UserError(
+                        f"source 'gige': camera {cameras[name].device} delivered no frame in "
+                        f"{settings.timeout_s:g} s (trigger {settings.trigger!r})"
+                    )
+                continue
+            trackers[name].add(frame.device_time_s, frame.host_time_s)
+            times[name].append((frame.device_time_s, frame.host_time_s))
+            if settings.trigger == "free" and name in frames:  # its time by the earlier ones
+                frame = _steadied(frame, frames[name], settings, backend.frame_id_modulus)
+            frames[name], waiting_since[name] = frame, now
+    pairs = {
+        name: (np.array([d for d, _ in t]), np.array([h for _, h in t]))
+        for name, t in times.items()
+    }
+    return frames, trackers, pairs
+
+
+def open_gige(
+    settings: Mapping[str, Any],
+    backend: Callable[[CameraSettings, GigeSettings], CameraBackend] | None = None,
+) -> GigeStream:
+    """Open the ``gige`` source (settings: :mod:`catenary_camera.settings`).
+
+    ``backend`` makes a camera's backend (default: the settings' ``backend``, Aravis).
+    """
+    parsed = parse_settings(settings)
+    if backend is None:
+        from .aravis import AravisCamera
+
+        backend = AravisCamera
+    backends: dict[str, CameraBackend] = {}
+    try:
+        for camera in parsed.cameras:
+            backends[camera.name] = backend(camera, parsed)
+            try:
+                backends[camera.name].connect()
+            except CameraUnavailable as exc:
+                raise UserError(f"source 'gige': {exc}") from None
+        first, clocks, pairs = _preroll(parsed, backends)
+    except BaseException:
+        for opened in backends.values():
+            opened.disconnect()
+        raise
+    return GigeStream(parsed, backends, first, clocks, pairs)

@@ -1,0 +1,144 @@
+"""Frames to scans (``catenary_camera.assembly``): placed by time and frame id, never shifted."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from catenary_camera.assembly import RESYNC_FRAMES, ScanAssembler
+
+N = 8  # lines per frame
+W = 6
+RATE = 1000.0
+T0 = 1_700_000_000.0
+
+
+MARK = 1000  # a line holds its scan index + MARK (0: no line)
+
+
+def frame(first_scan: int) -> np.ndarray:
+    """A frame whose lines hold their scan index + MARK (``[N, W]`` uint16)."""
+    index = np.arange(first_scan, first_scan + N) + MARK
+    return np.repeat(index.astype(np.uint16)[:, None], W, axis=1)
+
+
+def assembler(**kwargs: object) -> ScanAssembler:
+    cameras = {"a": (W, np.dtype(np.uint16)), "b": (W, np.dtype(np.uint16))}
+    return ScanAssembler(cameras, N, RATE, T0, **kwargs)  # type: ignore[arg-type]
+
+
+def check_in_place(lines: np.ndarray, valid: np.ndarray, first: int = 0) -> None:
+    index = np.arange(first, first + lines.shape[0]) + MARK
+    assert (lines[valid] == index[valid, None]).all()
+    assert (lines[~valid] == 0).all()
+
+
+def test_consecutive_frames_of_two_cameras_make_scans_in_step() -> None:
+    asm = assembler()
+    for k in range(4):  # b started later: other frame ids, and 3 ms behind a's clock
+        asm.add("a", 100 + k, T0 + k * N / RATE, frame(k * N))
+        asm.add("b", 7 + k, T0 + (k * N + 0.3) / RATE, frame(k * N))
+    assert asm.reached("a") == asm.reached("b") == 4 * N
+    scans = asm.take(4 * N)
+    for name in "ab":
+        assert scans.valid[name].all()
+        check_in_place(scans.lines[name], scans.valid[name])
+    np.testing.assert_allclose(scans.time_s, np.arange(4 * N) / RATE)
+    assert asm.counts("a").delivered == 4 * N and asm.counts("a").lost == 0
+
+
+def test_a_lost_frame_leaves_exactly_its_lines_invalid() -> None:
+    asm = assembler()
+    for k in (0, 1, 3, 4):  # frame id 2 never came
+        asm.add("a", 1 + k, T0 + k * N / RATE, frame(k * N))
+    asm.add("a", 6, None, None)  # frame 5 came incomplete: no lines, no trusted stamp
+    scans = asm.take(6 * N)
+    expected = np.ones(6 * N, dtype=bool)
+    expected[2 * N : 3 * N] = False
+    expected[5 * N :] = False
+    np.testing.assert_array_equal(scans.valid["a"], expected)
+    check_in_place(scans.lines["a"], scans.valid["a"])
+    assert asm.counts("a").incomplete_frames == 1 and asm.counts("a").missing_frames == 1
+    assert asm.counts("b").lost == 6 * N  # b delivered nothing
+
+
+def test_frame_ids_wrap_from_65535_to_1() -> None:
+    asm = assembler()
+    for k, fid in enumerate((65534, 65535, 1, 2)):
+        asm.add("a", fid, T0 + k * N / RATE, frame(k * N))
+    scans = asm.take(4 * N)
+    assert scans.valid["a"].all()
+    check_in_place(scans.lines["a"], scans.valid["a"])
+
+
+def test_frames_whose_times_all_disagree_with_their_ids_are_placed_by_time() -> None:
+    asm = assembler()
+    asm.add("a", 1, T0, frame(0))
+    # from id 2 on, every frame comes 2 frames later than its id says (a line clock far off)
+    for k in range(1, RESYNC_FRAMES + 1):
+        asm.add("a", 1 + k, T0 + (k + 2) * N / RATE, frame((k + 2) * N))
+    assert asm.counts("a").resyncs == 1
+    asm.add(
+        "a", RESYNC_FRAMES + 2, T0 + (RESYNC_FRAMES + 3) * N / RATE, frame((RESYNC_FRAMES + 3) * N)
+    )
+    scans = asm.take(asm.reached("a"))
+    last = scans.lines["a"][-N:]  # the frames after the resync are where their times say
+    check_in_place(last, np.ones(N, dtype=bool), first=scans.scans - N)
+
+
+def test_one_late_stamp_moves_nothing_but_an_early_one_does() -> None:
+    asm = assembler()
+    for k in range(4):  # frame 2 stamped 3 frames late
+        asm.add("a", 1 + k, T0 + (k + (3 if k == 2 else 0)) * N / RATE, frame(k * N))
+    scans = asm.take(4 * N)
+    assert scans.valid["a"].all() and asm.counts("a").resyncs == 0
+    check_in_place(scans.lines["a"], scans.valid["a"])
+    asm.add("a", 5, T0 + 2 * N / RATE, frame(2 * N))  # stamped before its predecessor's lines
+    assert asm.counts("a").resyncs == 1
+
+
+def test_lines_before_the_run_or_already_handed_out_are_dropped() -> None:
+    asm = assembler()
+    asm.add("a", 1, T0 - 3 / RATE, frame(-3))  # started 3 lines before scan 0
+    first = asm.take(2)
+    assert first.valid["a"].all() and (first.lines["a"][:, 0] == [MARK, MARK + 1]).all()
+    asm.add("b", 1, T0, frame(0))  # b's lines 0-1 are late: scans 0-1 are gone
+    rest = asm.take(N - 3)
+    check_in_place(rest.lines["b"], rest.valid["b"], first=2)
+    assert rest.valid["b"].all() and asm.counts("b").late_lines == 2
+
+
+def test_repeated_frame_ids_add_nothing() -> None:
+    asm = assembler()
+    asm.add("a", 5, T0, frame(0))
+    asm.add("a", 5, T0, frame(0) + 1)
+    scans = asm.take(N)
+    check_in_place(scans.lines["a"], scans.valid["a"])
+
+
+def test_a_reconnected_camera_is_placed_by_time_again() -> None:
+    asm = assembler()
+    asm.add("a", 40, T0, frame(0))
+    asm.restart("a")
+    asm.add("a", 40, T0 + 5 * N / RATE, frame(5 * N))  # the camera restarted its ids
+    scans = asm.take(6 * N)
+    assert scans.valid["a"][:N].all() and not scans.valid["a"][N : 5 * N].any()
+    check_in_place(scans.lines["a"], scans.valid["a"])
+
+
+def test_encoder_lines_align_first_frames_to_whole_frames_and_interpolate_times() -> None:
+    asm = assembler(encoder=True)
+    # the train slows down: frames of N lines take 8, then 16 ms; b's first frame is 2 ms late
+    asm.add("a", 1, T0, frame(0))
+    asm.add("b", 9, T0 + 0.002, frame(0))
+    asm.add("a", 2, T0 + 0.008, frame(N))
+    asm.add("b", 10, T0 + 0.010, frame(N))
+    asm.add("a", 3, T0 + 0.024, frame(2 * N))
+    asm.add("b", 11, T0 + 0.024, frame(2 * N))
+    scans = asm.take(2 * N + 1)
+    for name in "ab":
+        assert scans.valid[name].all()
+        check_in_place(scans.lines[name], scans.valid[name])
+    assert np.all(np.diff(scans.time_s) >= 0)
+    assert scans.time_s[2 * N] == pytest.approx(0.024, abs=1e-6)  # UNIX float64: 0.2 µs
+    assert scans.time_s[N + N // 2] == pytest.approx(0.0165, abs=1.5e-3)  # half-way, 2nd frame

@@ -1,0 +1,465 @@
+"""The ``gige`` source against four of Aravis's fake GigE Vision cameras over loopback.
+
+All fake-camera tests are in this module: ``--dist loadscope`` keeps them on one worker, so
+no two tests bind the same addresses at once. Every camera fills its frames with lines that
+say which line they are (``fakecam.marked_lines``): a valid recorded line must be the line
+its scan should hold, the same one in every camera.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from catenary.domain import ScanBlock
+from catenary.errors import UserError
+from catenary_camera.stream import GigeStream, open_gige
+from tests.camera.fakecam import (
+    ADDRESSES,
+    Content,
+    FakeCamera,
+    line_marks,
+    marked_lines,
+    missing_addresses,
+    wide_genicam,
+)
+
+WIDTH = 4096
+# Lines of 20 ms: the fake cameras stamp a frame when their thread wakes, which on this busy
+# 2-core machine (their callbacks fill frames in this process) was seen up to 60 ms late: a
+# camera's frames are placed by its stamps, so the cameras agree to within STAMP_LINES lines
+# here (exactly with a camera's own clock); within one camera nothing ever moves.
+RATE_HZ = 50.0
+LINES = 20  # per frame: a frame every 400 ms
+NAMES = ("cam1", "cam2", "cam3", "cam4")
+STAMP_LINES = 1
+
+
+@pytest.fixture(scope="module")
+def genicam(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    missing = missing_addresses()
+    if missing:
+        pytest.fail(
+            f"loopback addresses {', '.join(missing)} missing: run .ci/run, or "
+            "`ip addr add 127.0.0.N/8 dev lo` for N = 2..5"
+        )
+    return wide_genicam(tmp_path_factory.mktemp("genicam") / "fake-wide.xml")
+
+
+@pytest.fixture
+def cameras(genicam: Path) -> Iterator[dict[str, FakeCamera]]:
+    fakes = {
+        name: FakeCamera(address, f"CAT{i + 1}", genicam)
+        for i, (name, address) in enumerate(zip(NAMES, ADDRESSES, strict=True))
+    }
+    for fake in fakes.values():
+        fake.fill(marked_lines, RATE_HZ)
+    yield fakes
+    for fake in fakes.values():
+        if fake.camera is not None:
+            fake.close()
+
+
+def settings(**extra: object) -> dict[str, object]:
+    return {
+        "cameras": {
+            name: {"address": address, "width": WIDTH}
+            for name, address in zip(NAMES, ADDRESSES, strict=True)
+        },
+        "line_rate_hz": RATE_HZ,
+        "lines_per_frame": LINES,
+        "timeout_s": 2.0,  # 5 frames: a few may come incomplete (packet loss)
+        "reconnect_interval_s": 0.2,
+        "synchronized_clocks": True,  # the fake cameras stamp their frames with the host's
+        **extra,
+    }
+
+
+def record(stream: GigeStream, scans: int, block_scans: int = 50) -> list[ScanBlock]:
+    blocks = []
+    try:
+        for block in stream.blocks(block_scans):
+            blocks.append(block)
+            if sum(b.scans for b in blocks) >= scans:
+                break
+    finally:
+        stream.close()
+    return blocks
+
+
+def joined(blocks: list[ScanBlock], name: str) -> tuple[np.ndarray, np.ndarray]:
+    lines = np.concatenate([b.cameras[name].lines for b in blocks])
+    valid = np.concatenate(
+        [
+            np.ones(b.scans, dtype=bool) if (v := b.cameras[name].valid) is None else v
+            for b in blocks
+        ]
+    )
+    return lines, valid
+
+
+def offsets(blocks: list[ScanBlock], name: str) -> tuple[np.ndarray, np.ndarray]:
+    """Each valid line's mark minus its scan index (one value if nothing is shifted), and
+    whether every valid line is intact."""
+    lines, valid = joined(blocks, name)
+    marks, intact = line_marks(lines[valid])
+    scans = np.flatnonzero(valid)
+    return np.unique((marks - scans) % 2**32), intact
+
+
+def test_four_cameras_record_in_step(cameras: dict[str, FakeCamera]) -> None:
+    stream = open_gige(settings())
+    assert stream.header.camera_pixels == dict.fromkeys(NAMES, WIDTH)
+    assert stream.positions_from_encoder
+    assert abs(stream.clock_zero_unix_s - time.time()) < 5.0
+    blocks = record(stream, 300)
+    assert [b.first_scan for b in blocks] == [50 * i for i in range(len(blocks))]
+    time_s = np.concatenate([b.time_s for b in blocks])
+    np.testing.assert_allclose(time_s, np.arange(time_s.size) / RATE_HZ)
+    assert np.isnan(np.concatenate([b.position_m for b in blocks])).all()
+    shift = set()
+    for name in NAMES:
+        _, valid = joined(blocks, name)
+        assert valid.mean() > 0.95, name  # loopback without loss: a stamp very late at most
+        found, intact = offsets(blocks, name)
+        assert intact.all(), name
+        assert found.size == 1, (name, found)  # nothing shifted
+        shift.add(int(found[0]))
+    assert max(shift) - min(shift) <= STAMP_LINES  # every camera's line i is the same line
+    assert "cam1" in stream.summary() and "reconnections" in stream.summary()
+
+
+def test_packet_loss_gives_invalid_lines_never_wrong_ones(
+    cameras: dict[str, FakeCamera],
+) -> None:
+    cameras["cam2"].set_loss(5.0)  # 1 packet in 200: a quarter of the frames lose one
+    blocks = record(open_gige(settings(packet_size=1500)), 400)
+    _, valid = joined(blocks, "cam2")
+    assert 0 < valid.sum() < valid.size
+    found, intact = offsets(blocks, "cam2")
+    assert intact.all() and found.size == 1
+    reference, _ = offsets(blocks, "cam1")
+    assert abs(int(found[0]) - int(reference[0])) <= STAMP_LINES
+    starts = np.flatnonzero(np.diff(np.r_[0, (~valid).astype(int)]) == 1)
+    assert np.unique(starts % LINES).size == 1  # whole frames are invalid, nothing less
+
+
+@pytest.mark.slow
+def test_a_camera_dropping_off_is_reconnected(
+    cameras: dict[str, FakeCamera], genicam: Path
+) -> None:
+    stream = open_gige(settings())
+
+    def drop_and_return() -> None:
+        time.sleep(1.0)
+        cameras["cam3"].close()
+        time.sleep(2.0)
+        cameras["cam3"] = FakeCamera(ADDRESSES[2], "CAT3", genicam)
+        cameras["cam3"].fill(marked_lines, RATE_HZ)
+
+    outage = threading.Thread(target=drop_and_return)
+    outage.start()
+    try:
+        blocks = record(stream, 700)
+    finally:
+        outage.join()
+    _, valid = joined(blocks, "cam3")
+    assert not valid[60:140].any()  # the 2 s it was away
+    assert valid[:40].all() and valid[-200:].all()  # before and after
+    found, intact = offsets(blocks, "cam3")  # before and after: the camera restarts its lines
+    reference, _ = offsets(blocks, "cam1")
+    assert intact.all() and found.size <= 2
+    assert (np.abs(found.astype(np.int64) - int(reference[0])) <= STAMP_LINES).all()
+    assert joined(blocks, "cam1")[1].all()  # the others recorded on
+    assert "1 reconnections" in stream.summary().splitlines()[2]
+
+
+def test_a_camera_is_found_by_serial_number(cameras: dict[str, FakeCamera]) -> None:
+    chosen = settings()
+    chosen["cameras"] = {"cam2": {"serial": "CAT2", "width": 1024}}
+    blocks = record(open_gige(chosen), 100)
+    found, intact = offsets(blocks, "cam2")
+    assert intact.all() and found.size == 1
+
+
+def test_region_of_interest_and_rate_reach_the_camera(cameras: dict[str, FakeCamera]) -> None:
+    chosen = settings()
+    chosen["cameras"] = {"cam1": {"address": ADDRESSES[0], "width": 2000, "offset_px": 96}}
+    stream = open_gige(chosen)
+    assert stream.header.camera_offset_px == {"cam1": 96}
+    blocks = record(stream, 100)
+    assert blocks[0].cameras["cam1"].lines.shape == (50, 2000)
+    assert blocks[0].cameras["cam1"].offset_px == 96
+
+
+def test_settings_a_camera_refuses_are_one_line(cameras: dict[str, FakeCamera]) -> None:
+    chosen = settings()
+    chosen["cameras"] = {"cam1": {"address": ADDRESSES[0], "width": 20000}}
+    with pytest.raises(UserError, match=r"cam1 \(127\.0\.0\.2\): Width = 20000 refused"):
+        open_gige(chosen)
+    encoder = settings(trigger="encoder", metres_per_line=0.013)
+    del encoder["line_rate_hz"]
+    with pytest.raises(UserError, match=r"cam1 .*no line trigger \(TriggerSelector entry LineSt"):
+        open_gige(encoder)
+    open_gige({**settings(), "exposure_us": 500.0}).close()  # ExposureTimeAbs, the older name
+
+
+def test_an_absent_camera_is_one_line(cameras: dict[str, FakeCamera]) -> None:
+    chosen = settings()
+    chosen["cameras"] = {"cam9": {"address": "127.0.0.9", "width": 512}}
+    with pytest.raises(UserError, match=r"camera cam9 \(127\.0\.0\.9\)"):
+        open_gige(chosen)
+
+
+def can_log(path: Path, start_unix_s: float, seconds: float, speed_mps: float) -> Path:
+    """A BLF log of the CAN sensors from ``start_unix_s``: the encoder at ``speed_mps`` and
+    steady displacement sensors, every 5 ms (UNIX timestamps, as a live bus gives)."""
+    import can
+
+    from catenary_can.decode import DEFAULT_METRES_PER_PULSE
+    from catenary_can.reader import load_database
+
+    database = load_database()
+    encoder = database.get_message_by_name("WheelEncoder")
+    sensors = database.get_message_by_name("DisplacementSensors")
+    with can.Logger(path) as logger:
+        for i in range(round(seconds / 0.005)):
+            t = start_unix_s + i * 0.005
+            pulses = round(speed_mps * i * 0.005 / DEFAULT_METRES_PER_PULSE)
+            for message, signals in (
+                (encoder, {"pulse_count": pulses, "status": 0, "counter": i % 16}),
+                (
+                    sensors,
+                    {
+                        "left_mm": 2.0,
+                        "right_mm": -1.0,
+                        "lateral_mm": 3.0,
+                        "status": 0,
+                        "counter": i % 16,
+                    },
+                ),
+            ):
+                logger.on_message_received(
+                    can.Message(
+                        timestamp=t,
+                        arbitration_id=message.frame_id,
+                        is_extended_id=False,
+                        data=message.encode(signals),
+                    )
+                )
+    return path
+
+
+@pytest.mark.slow
+def test_catenary_record_writes_a_run_file_with_valid_lines_and_encoder_positions(
+    cameras: dict[str, FakeCamera], tmp_path: Path
+) -> None:
+    from click.testing import CliRunner
+
+    from catenary.cli import cli
+    from catenary.measurement.runfile import open_run
+
+    cameras["cam4"].set_loss(5.0)  # of packets of 1500 B: a quarter of the frames lose one
+    log = can_log(tmp_path / "can.blf", time.time() - 5.0, 40.0, speed_mps=20.0)
+    table = ", ".join(
+        f'{name} = {{address = "{address}", width = {WIDTH}}}'
+        for name, address in zip(NAMES, ADDRESSES, strict=True)
+    )
+    out = tmp_path / "run.h5"
+    result = CliRunner().invoke(
+        cli,
+        [
+            "record", str(out), "--source", "gige",
+            "--source-option", f"cameras={{{table}}}",
+            "--source-option", f"line_rate_hz={RATE_HZ}",
+            "--source-option", f"lines_per_frame={LINES}",
+            "--source-option", "packet_size=1500", "--source-option", "timeout_s=2.0",
+            "--source-option", "synchronized_clocks=true",
+            "--vehicle-source", "can", "--vehicle-option", f"log={log}",
+            "--max-scans", "400", "--block-scans", "100",
+        ],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "camera cam4 (127.0.0.5)" in result.stdout and "recorded" in result.stdout
+    with open_run(out) as run:
+        assert run.header.camera_offset_px == dict.fromkeys(NAMES, 0)
+        blocks = list(run.blocks(500))
+    position_m = np.concatenate([b.position_m for b in blocks])
+    np.testing.assert_allclose(np.diff(position_m), 20.0 / RATE_HZ, atol=0.002)
+    found, intact = offsets(blocks, "cam4")
+    reference, _ = offsets(blocks, "cam1")
+    assert intact.all() and found.size == 1
+    assert abs(int(found[0]) - int(reference[0])) <= STAMP_LINES
+    assert not joined(blocks, "cam4")[1].all()
+
+
+def simulated_lines(settings: dict[str, object]) -> dict[str, np.ndarray]:
+    """Every camera's lines of a simulated run ``[S, W]`` (the demo rig: 4 x 4096 px)."""
+    from catenary_linescan.simulator import open_simulation
+
+    stream = open_simulation(settings)
+    blocks = list(stream.blocks(1024))
+    return {name: np.concatenate([b.cameras[name].lines for b in blocks]) for name in NAMES}
+
+
+def from_line(lines: np.ndarray, first_line: int) -> Content:
+    """Frame content: absolute line ``first_line + j`` shows ``lines[j]``, black elsewhere."""
+
+    def content(first: int, count: int, width: int) -> np.ndarray:
+        out = np.zeros((count, width), dtype=np.uint8)
+        rows = np.arange(first, first + count) - first_line
+        inside = (rows >= 0) & (rows < lines.shape[0])
+        out[inside] = lines[rows[inside], :width]
+        return out
+
+    return content
+
+
+@pytest.mark.slow
+def test_simulated_lines_arrive_bit_for_bit_in_their_scans(
+    cameras: dict[str, FakeCamera],
+) -> None:
+    lines = simulated_lines({"length_m": 30.0, "seed": 11, "scan_rate_hz": RATE_HZ})
+    # 6 s from now: after the cameras' clocks are learnt (8 frames of 0.4 s each)
+    first_line = (int((time.time() + 6.0) * RATE_HZ) // LINES + 1) * LINES
+    for name, fake in cameras.items():
+        fake.fill(from_line(lines[name], first_line), RATE_HZ)
+    stream = open_gige(settings())
+    start_line = round(stream.clock_zero_unix_s * RATE_HZ)
+    wanted = first_line - start_line + lines["cam1"].shape[0] + 100
+    blocks = record(stream, wanted)
+    for name in NAMES:
+        got, valid = joined(blocks, name)
+        assert valid.mean() > 0.99
+        sim = np.arange(got.shape[0]) + start_line - first_line  # the simulated scan of each
+        inside = valid & (sim >= 0) & (sim < lines[name].shape[0])
+        assert inside.sum() > 0.99 * lines[name].shape[0]
+        np.testing.assert_array_equal(got[inside], lines[name][sim[inside]])
+
+
+def sensor_log(path: Path, run: Path, start_unix_s: float, lead_s: float) -> Path:
+    """The CAN log of a simulated run file's encoder and displacement sensors, its scan 0 at
+    ``start_unix_s``, from ``lead_s`` before it to ``lead_s`` after its end (the encoder
+    carried on at the run's first and last speed, the sensors held)."""
+    import can
+    import h5py
+
+    from catenary_can.decode import DEFAULT_METRES_PER_PULSE
+    from catenary_can.reader import load_database
+
+    with h5py.File(run, "r") as f:
+        scan_t, position = f["/scans/time_s"][:], f["/scans/position_m"][:]
+        sensor_t = f["/vehicle/time_s"][:]
+        sensors = {k: f[f"/vehicle/{k}"][:] for k in ("left_mm", "right_mm", "lateral_mm")}
+    t = np.arange(-lead_s, scan_t[-1] + lead_s, 0.005)
+    first_speed = (position[100] - position[0]) / (scan_t[100] - scan_t[0])
+    last_speed = (position[-1] - position[-101]) / (scan_t[-1] - scan_t[-101])
+    where = np.interp(t, scan_t, position)
+    where = np.where(t < 0, t * first_speed, where)
+    where = np.where(t > scan_t[-1], position[-1] + (t - scan_t[-1]) * last_speed, where)
+    pulses = np.round((where - where[0]) / DEFAULT_METRES_PER_PULSE).astype(int)
+    values = {k: np.round(np.interp(t, sensor_t, v), 2) for k, v in sensors.items()}
+    database = load_database()
+    encoder = database.get_message_by_name("WheelEncoder")
+    displacement = database.get_message_by_name("DisplacementSensors")
+    with can.Logger(path) as logger:
+        for i, ti in enumerate(t):
+            for message, signals in (
+                (encoder, {"pulse_count": int(pulses[i]), "status": 0, "counter": i % 16}),
+                (
+                    displacement,
+                    {**{k: float(v[i]) for k, v in values.items()}, "status": 0, "counter": i % 16},
+                ),
+            ):
+                logger.on_message_received(
+                    can.Message(
+                        timestamp=start_unix_s + ti,
+                        arbitration_id=message.frame_id,
+                        is_extended_id=False,
+                        data=message.encode(signals),
+                    )
+                )
+    return path
+
+
+@pytest.mark.slow
+def test_a_recorded_simulated_run_processes_to_the_truth(
+    cameras: dict[str, FakeCamera], tmp_path: Path, isolated_environment: Path
+) -> None:
+    """The simulator's lines through four fake cameras and its sensors through a CAN log,
+    recorded by ``catenary record`` and processed by ``catenary process``: residual thickness
+    within 0.1 mm, height and stagger within 2 mm of the truth (the processor's targets)."""
+    from datetime import datetime
+
+    import h5py
+    from click.testing import CliRunner
+
+    from catenary.cli import cli
+    from catenary_linescan.simulator import DEMO_RIG_PATH, load_rig, record_run
+    from catenary_linescan.simulator.captures import write_captures
+    from tests.measurement.test_process import samples_of, thickness_error, truth_of
+
+    def invoke(*args: object) -> str:
+        result = CliRunner().invoke(cli, [str(a) for a in args], catch_exceptions=False)
+        assert result.exit_code == 0, result.output
+        return result.output
+
+    sim = tmp_path / "sim.h5"
+    record_run(sim, {"length_m": 20.0, "seed": 13, "scan_rate_hz": RATE_HZ, "speed_kmh": 5})
+    captures, _ = write_captures(tmp_path / "captures.h5", load_rig(DEMO_RIG_PATH), seed=2)
+    rig = tmp_path / "rig.toml"
+    invoke("calibrate", captures, "--vehicle", DEMO_RIG_PATH, "-o", rig)
+    with h5py.File(sim, "r") as f:
+        lines = {name: f[f"/cameras/{name}/lines"][:] for name in NAMES}
+        line, track = f.attrs["line"], f.attrs["track"]
+        start_chainage_m = float(f.attrs["start_chainage_m"])
+    scans = lines["cam1"].shape[0]
+    first_line = (int((time.time() + 8.0) * RATE_HZ) // LINES + 1) * LINES
+    log = sensor_log(tmp_path / "can.blf", sim, first_line / RATE_HZ, lead_s=8.0)
+    for name, fake in cameras.items():
+        fake.fill(from_line(lines[name], first_line), RATE_HZ)
+    table = ", ".join(
+        f'{name} = {{address = "{address}", width = {WIDTH}}}'
+        for name, address in zip(NAMES, ADDRESSES, strict=True)
+    )
+    wanted = first_line - int(time.time() * RATE_HZ) + scans + 200
+    out = tmp_path / "run.h5"
+    invoke(
+        "record", out, "--source", "gige",
+        "--source-option", f"cameras={{{table}}}",
+        "--source-option", f"line_rate_hz={RATE_HZ}",
+        "--source-option", f"lines_per_frame={LINES}",
+        "--source-option", f"line='{line}'", "--source-option", f"track='{track}'",
+        "--source-option", f"start_chainage_m={start_chainage_m}",
+        "--source-option", "synchronized_clocks=true",
+        "--vehicle-source", "can", "--vehicle-option", f"log={log}",
+        "--max-scans", wanted,
+    )  # fmt: skip
+    with h5py.File(out, "r") as f:
+        started = datetime.fromisoformat(f.attrs["started_at"]).timestamp()
+    start_line = round(started * RATE_HZ)
+    database = f"sqlite:///{tmp_path / 'db.sqlite'}"
+    invoke("--db", database, "db", "upgrade")
+    invoke("process", out, "--rig", rig, "--masts", sim.with_suffix(".masts.csv"), "--db", database)
+    samples = samples_of(database, isolated_environment, 1)
+    samples["scan"] = samples["scan"] + start_line - first_line  # the simulated scan of each
+    inside = (samples["scan"] >= 0) & (samples["scan"] < scans)
+    samples = {k: v[inside] for k, v in samples.items()}
+    truth = truth_of(sim.with_suffix(".truth.h5"))
+    on_wire, error = thickness_error(samples, truth)
+    assert on_wire.mean() > 0.999 and error.size > 0.9 * scans
+    assert np.max(np.abs(error)) < 0.1
+    scan = samples["scan"]
+    distance = np.abs(truth["stagger_mm"][scan] - samples["stagger_mm"][:, None])
+    distance = np.where(truth["contact"] & truth["present"][scan], distance, np.inf)
+    nearest = np.argmin(distance, axis=1)
+    rows = np.arange(scan.shape[0])
+    good = (distance[rows, nearest] < 20.0) & truth["running"][scan, nearest]
+    good &= ~samples["vehicle_fault"]  # as tests/measurement/test_process.py
+    assert np.max(np.abs(samples["stagger_mm"] - truth["stagger_mm"][scan, nearest])[good]) < 2
+    assert np.max(np.abs(samples["height_mm"] - truth["height_mm"][scan, nearest])[good]) < 2
