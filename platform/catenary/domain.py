@@ -64,12 +64,26 @@ class CameraLines:
     """One camera's lines for a block of scans: ``lines`` is ``[n, W]`` uint8 or uint16.
 
     ``offset_px``: line pixel ``i`` is pixel ``offset_px + i`` of the camera's sensor (a
-    region of interest; 0: the lines start at the sensor's first pixel).
+    region of interest; 0: the lines start at the sensor's first pixel). ``valid``: bool
+    ``[n]``, false where the camera delivered no line for the scan (a lost or incomplete
+    buffer: that camera did not see the scan, and the line's pixels are meaningless, e.g.
+    zeros); None: every line is valid (FORMATS.md ``/cameras/{name}/valid``).
     """
 
     lines: UInt8Array | UInt16Array
     bit_depth: int
     offset_px: int = 0
+    valid: BoolArray | None = None
+
+
+@dataclass(frozen=True)
+class EncoderReadings:
+    """The wheel encoder's raw readings, each ``[E]``: ``time_s`` on the scan clock
+    (non-decreasing), ``position_m`` the distance it counted [m] (from any origin; faulty
+    readings left out). FORMATS.md ``/encoder/*``."""
+
+    time_s: FloatArray
+    position_m: FloatArray
 
 
 @dataclass(frozen=True)

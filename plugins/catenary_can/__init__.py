@@ -13,8 +13,11 @@ out-of-range sensors and status faults flagged (``VehicleSamples.fault``), plus 
 positions. ``catenary record OUT.h5 --source simulator --vehicle-source can
 --vehicle-option log=run.blf`` takes the scans from the scan source and the vehicle samples
 from this one (``vehicle_samples(until_s, final=...)``), writing both through the run file
-writer. Settings: :mod:`catenary_can.reader`. Modules are imported inside the hook so that
-the registry reports a failure here by name.
+writer; the encoder's readings (``encoder_readings``) give free-running cameras' scans their
+positions, or check encoder-triggered ones, and ``align_clock`` puts a live camera source's
+scan time 0 on the bus's clock (:mod:`catenary.measurement.recording`). Settings:
+:mod:`catenary_can.reader`. Modules are imported inside the hook so that the registry reports
+a failure here by name.
 """
 
 from __future__ import annotations

@@ -4,8 +4,10 @@
 return a :class:`CanSensorStream`. Its :meth:`~CanSensorStream.read` yields
 :class:`~catenary_can.decode.TrackedBlock` s (flagged vehicle samples and encoder positions)
 of at most ``chunk_frames`` frames each, so memory stays bounded whatever the recording's
-length; :meth:`~CanSensorStream.vehicle_samples` yields just the vehicle samples (what
-``catenary record`` writes).
+length; :meth:`~CanSensorStream.vehicle_samples` yields just the vehicle samples and
+:meth:`~CanSensorStream.encoder_readings` just the encoder's good readings (what ``catenary
+record`` writes; each keeps what a call of the other decoded for it, at most
+:data:`MAX_HELD_ROWS` rows of either kind, the oldest dropped beyond that).
 
 * **Log files**: ``can.LogReader`` (python-can's formats, chosen by suffix: ``.asc``, ``.blf``,
   ``.csv``, ``.db``, ``.log``, ``.mf4``, ``.trc``, each optionally ``.gz``), read lazily as fast
@@ -28,7 +30,9 @@ length; :meth:`~CanSensorStream.vehicle_samples` yields just the vehicle samples
 * **Time**: every sample is timestamped from its frame, on the scan clock:
   ``time_s = frame.timestamp - time_zero_s``; ``time_zero_s`` defaults to the first frame's
   timestamp (any frame), so a log starts at 0 like a run's scans. Set it when the scan source
-  and the CAN interface share a clock (a live rig: the host's clock at the first scan). The
+  and the CAN interface share a clock (a live rig: the host's clock at the first scan); the
+  recorder does so itself through :meth:`~CanSensorStream.align_clock` when the scan source
+  knows the host's UNIX time of its scan time 0 and ``time_zero_s`` is not configured. The
   frames' clock is the log's: UNIX time for BLF, CSV, canutils and live buses, seconds since
   the log's start for ASC (python-can's ``ASCReader`` default).
 
@@ -74,7 +78,7 @@ import can
 import cantools
 import numpy as np
 
-from catenary.domain import VehicleSamples
+from catenary.domain import EncoderReadings, VehicleSamples
 from catenary.errors import UserError, one_line
 
 from .decode import (
@@ -114,6 +118,9 @@ MAX_NOTIFIER_RESTARTS = 3
 NOTIFIER_TIMEOUT_S = 0.1
 ERROR_BACKOFF_S = 0.01
 MAX_UNKNOWN_IDS = 32  # distinct unknown ids listed; beyond that they are only counted
+MAX_HELD_ROWS = 1 << 20
+"""Samples (or readings) of one kind held for the other reader method, at most (16 MiB of
+encoder readings: 87 minutes at 200 Hz); the oldest are dropped beyond."""
 
 _SOURCE = "source 'can'"
 
@@ -482,7 +489,11 @@ class CanSensorStream:
         self._tracker = SensorTracker(config)
         self.config = config
         self.time_zero_s = time_zero_s
+        self._time_zero_configured = time_zero_s is not None
         self._chunk_frames = chunk_frames
+        # what vehicle_samples decoded for encoder_readings, and the other way round
+        self._held_vehicle: list[VehicleSamples] = []
+        self._held_encoder: list[EncoderReadings] = []
         self._next: can.Message | None = None  # read but later than the last ``until_s``
         self._closed = False
 
@@ -536,11 +547,49 @@ class CanSensorStream:
             self._decoder.add(msg, time_s)
         return False
 
+    def align_clock(self, clock_zero_unix_s: float) -> None:
+        """Put scan time 0 at the frames' clock reading ``clock_zero_unix_s`` (a live scan
+        source's host UNIX time of its first scan), unless ``time_zero_s`` was configured.
+        Called before any frame is read (``ValueError`` after)."""
+        if self._time_zero_configured:
+            return
+        if self.time_zero_s is not None:
+            raise ValueError(f"CAN {self.description}: clock aligned after frames were read")
+        if not math.isfinite(clock_zero_unix_s):
+            raise ValueError(f"CAN {self.description}: clock zero {clock_zero_unix_s!r}")
+        self.time_zero_s = float(clock_zero_unix_s)
+
     def vehicle_samples(self, until_s: float, *, final: bool = False) -> Iterator[VehicleSamples]:
-        """The flagged displacement samples of :meth:`read` (what ``catenary record`` writes)."""
+        """The flagged displacement samples of :meth:`read` (what ``catenary record`` writes),
+        those an :meth:`encoder_readings` call decoded first."""
+        held, self._held_vehicle = self._held_vehicle, []
+        yield from held
         for block in self.read(until_s, final=final):
+            self._hold(self._held_encoder, _good_readings(block))
             if block.vehicle.time_s.shape[0]:
                 yield block.vehicle
+
+    def encoder_readings(self, until_s: float, *, final: bool = False) -> Iterator[EncoderReadings]:
+        """The encoder's readings of :meth:`read`, faulty ones left out (``VehicleStream``'s
+        optional method), those a :meth:`vehicle_samples` call decoded first."""
+        held, self._held_encoder = self._held_encoder, []
+        yield from held
+        for block in self.read(until_s, final=final):
+            if block.vehicle.time_s.shape[0]:
+                self._hold(self._held_vehicle, block.vehicle)
+            readings = _good_readings(block)
+            if readings.time_s.shape[0]:
+                yield readings
+
+    @staticmethod
+    def _hold(held: list[Any], part: VehicleSamples | EncoderReadings) -> None:
+        """Keep ``part`` for the other method; drop the oldest beyond :data:`MAX_HELD_ROWS`."""
+        if part.time_s.shape[0] == 0:
+            return
+        held.append(part)
+        rows = sum(p.time_s.shape[0] for p in held)
+        while rows > MAX_HELD_ROWS and len(held) > 1:
+            rows -= held.pop(0).time_s.shape[0]
 
     def summary(self) -> str:
         """One line: frames read, frames lost, samples flagged and why."""
@@ -591,6 +640,12 @@ class CanSensorStream:
 
     def __repr__(self) -> str:
         return f"<CanSensorStream {self.description}>"
+
+
+def _good_readings(block: TrackedBlock) -> EncoderReadings:
+    """The block's encoder readings that are not faulty."""
+    good = ~block.encoder.fault
+    return EncoderReadings(block.encoder.time_s[good], block.encoder.position_m[good])
 
 
 # --------------------------------------------------------------------------------------------

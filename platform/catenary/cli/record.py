@@ -284,6 +284,11 @@ def record(
         )
         ctx.exit(TERMINATED_EXIT_CODE if result.terminated else INTERRUPTED_EXIT_CODE)
     click.echo(
-        f"recorded {result.path}: {result.scans} scans, {result.vehicle_samples} vehicle "
-        f"samples ({result.flagged_vehicle_samples} flagged)"
+        "; ".join(
+            [
+                f"recorded {result.path}: {result.scans} scans, {result.vehicle_samples} "
+                f"vehicle samples ({result.flagged_vehicle_samples} flagged)",
+                *result.details(),
+            ]
+        )
     )

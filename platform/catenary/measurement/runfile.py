@@ -25,6 +25,11 @@ Choices of this project (FORMATS.md leaves them open):
 * **Durability.** On the first append ``flush_interval_s`` after the last flush, staged
   scans are written and the file is flushed, so a power cut loses about that much recording
   (provided HDF5 can still open the file: without SWMR it may refuse a file cut mid-write).
+* **Optional datasets** (FORMATS.md). ``/cameras/{name}/valid`` (bool, chunked by
+  :data:`SERIES_CHUNK`) is created at the first line :meth:`RunFileWriter.append` is told is
+  invalid, its earlier rows true, and grows with the scans from then on: a run whose lines
+  are all valid does not have it. ``/encoder/time_s`` and ``/encoder/position_m`` (float64)
+  are created by the first :meth:`RunFileWriter.append_encoder`.
 * **Recording state.** The file is created with the root attribute ``complete = False``;
   :meth:`RunFileWriter.close` writes ``completed_scans`` (the number of scans) and
   ``completed_at`` (ISO 8601 UTC), then ``complete = True``. Leaving the ``with`` block by an
@@ -64,6 +69,11 @@ one block (plus one chunk of each vehicle dataset). Layout errors raise
   fault, whatever the gap's length. With no valid
   sample at all every scan is a fault and the values are 0 (nominal ride). Values where
   ``fault`` is true are a best guess and must not be trusted.
+* **Invalid lines.** A camera's ``valid`` dataset (FORMATS.md), where present, must be bool
+  ``[N]`` like the scans (else a FormatError naming it) and counts among the scan datasets
+  for the recording state; its rows come with the lines (``CameraLines.valid``), None where
+  the file has none (every line valid). ``/encoder/*`` is not read here (the recorder writes
+  it; processing uses the scans' positions).
 * Unknown extra groups and attributes are ignored; any HDF5 standard filter h5py can decode
   (gzip, lzf, szip, shuffle, fletcher32, ...) is read transparently.
 """
@@ -83,7 +93,7 @@ import h5py
 import numpy as np
 from numpy.typing import ArrayLike
 
-from catenary.arrays import FloatArray, UInt8Array, UInt16Array
+from catenary.arrays import BoolArray, FloatArray, UInt8Array, UInt16Array
 from catenary.domain import DEFAULT_BLOCK_SCANS, CameraLines, RunHeader, ScanBlock, VehicleSamples
 from catenary.errors import FormatError, UserError
 from catenary.measurement.sensors import SensorSmoother, SensorStream
@@ -126,6 +136,7 @@ _ATTR_MAX_VALUES: Final = 64  # an attribute holding more is refused before it i
 
 _SCAN_SERIES: Final = ("position_m", "time_s")
 _VEHICLE_SERIES: Final = ("time_s", "left_mm", "right_mm", "lateral_mm")
+_ENCODER_SERIES: Final = ("time_s", "position_m")
 
 LinesArray = UInt8Array | UInt16Array
 _Columns = Mapping[str, np.ndarray[Any, Any]]
@@ -184,6 +195,13 @@ class _GrowingDatasets:
         self.committed = 0
         self._parts: dict[str, list[np.ndarray[Any, Any]]] = {key: [] for key in datasets}
         self._staged = 0
+
+    def add(self, key: str, ds: Any) -> None:
+        """Grow ``ds`` with the others from now on (after a :meth:`commit`: nothing staged);
+        written first, so a write cut short leaves it no shorter than the rest."""
+        assert self._staged == 0 and ds.shape[0] == self.committed
+        self.datasets = {key: ds, **self.datasets}
+        self._parts = {key: [], **self._parts}
 
     def append(self, columns: _Columns, n: int) -> None:
         if self._staged + n < self.stage_rows:
@@ -344,6 +362,10 @@ class RunFileWriter:
             raise
         self._scans = 0
         self._vehicle_samples = 0
+        self._encoder_readings = 0
+        self._invalid_lines = dict.fromkeys(self._cameras, 0)
+        self._encoder_data: _GrowingDatasets | None = None
+        self._last_encoder_time_s = -math.inf
         self._last_position_m = -math.inf
         self._last_time_s = -math.inf
         self._last_vehicle_time_s = -math.inf
@@ -418,6 +440,8 @@ class RunFileWriter:
             **filters,
             **_cache_kwargs(SERIES_CHUNK * 8, filtered),
         }
+        self._series_options = series  # for /encoder/* and, as bool, /cameras/*/valid
+        self._flag_cache = _cache_kwargs(SERIES_CHUNK, filtered)
         # Lines first: a write cut short leaves positions no longer than the lines.
         scan_datasets: dict[str, Any] = {}
         stage_rows = SERIES_CHUNK
@@ -460,6 +484,16 @@ class RunFileWriter:
         return self._vehicle_samples
 
     @property
+    def encoder_readings(self) -> int:
+        """Encoder readings appended so far (staged ones included)."""
+        return self._encoder_readings
+
+    @property
+    def invalid_lines(self) -> dict[str, int]:
+        """Per camera, the lines appended marked invalid so far."""
+        return dict(self._invalid_lines)
+
+    @property
     def closed(self) -> bool:
         return self._closed
 
@@ -468,6 +502,7 @@ class RunFileWriter:
         block_positions_m: ArrayLike,
         time_s: ArrayLike,
         lines: Mapping[str, LinesArray],
+        valid: Mapping[str, ArrayLike | None] | None = None,
     ) -> None:
         """Append a block of ``n`` scans.
 
@@ -482,6 +517,11 @@ class RunFileWriter:
             One line per scan for every camera given to the constructor, of exactly its dtype
             (uint8 for ``bit_depth <= 8``, else uint16) and width, every value below
             ``2**bit_depth``.
+        valid : mapping of camera name to bool array_like ``[n]`` (or None), optional
+            False where the camera delivered no line for the scan (its line's pixels are
+            meaningless); a camera not given (or None): every line valid. The dataset
+            ``/cameras/{name}/valid`` is created at the first invalid line (earlier rows
+            true), so a run whose lines are all valid does not have it.
 
         The arrays are copied or written before this returns; the caller may reuse them.
         """
@@ -498,17 +538,28 @@ class RunFileWriter:
                 f"append: time_s has {times.shape[0]} values but block_positions_m has {n}"
             )
         self._check_lines(lines, n)
+        flags = self._check_valid(valid or {}, n)
         if n == 0:
             return
         first = self._scans
         _check_monotonic(position, self._last_position_m, "block_positions_m", first, self._error)
         _check_monotonic(times, self._last_time_s, "time_s", first, self._error)
 
+        for name, flag in flags.items():
+            lost = n - int(np.count_nonzero(flag))
+            key = f"cameras/{name}/valid"
+            if lost and key not in self._scan_data.datasets:
+                self._create_valid(key)
+            self._invalid_lines[name] += lost
         columns: dict[str, np.ndarray[Any, Any]] = {
             "scans/position_m": position,
             "scans/time_s": times,
         }
         columns.update((f"cameras/{name}/lines", lines[name]) for name in self._cameras)
+        for name in self._cameras:
+            key = f"cameras/{name}/valid"
+            if key in self._scan_data.datasets:
+                columns[key] = flags[name] if name in flags else np.ones(n, dtype=bool)
         self._scan_data.append(columns, n)
         self._scans += n
         self._last_position_m = float(position[-1])
@@ -559,6 +610,68 @@ class RunFileWriter:
         self._last_vehicle_time_s = float(arrays[0][-1])
         self._maybe_flush()
 
+    def _check_valid(self, valid: Mapping[str, ArrayLike | None], n: int) -> dict[str, BoolArray]:
+        """The ``valid`` flags given, each a bool array ``[n]``."""
+        flags: dict[str, BoolArray] = {}
+        for name, value in valid.items():
+            if name not in self._cameras:
+                raise self._error(f"append: valid of unknown camera {name!r}")
+            if value is None:
+                continue
+            flag = np.asarray(value)
+            if flag.dtype != np.bool_ or flag.shape != (n,):
+                raise self._error(
+                    f"append: valid of camera {name!r} is {flag.dtype} {flag.shape}, "
+                    f"expected bool ({n},)"
+                )
+            flags[name] = flag
+        return flags
+
+    def _create_valid(self, key: str) -> None:
+        """``/cameras/{name}/valid``, its rows so far true, growing with the scans."""
+        self._scan_data.commit()
+        rows = self._scan_data.committed
+        options = {**self._series_options, **self._flag_cache, "shape": (rows,)}
+        ds = self._file.create_dataset(key, **{**options, "dtype": np.bool_})
+        if rows:
+            ds[:] = True  # stored, not a fill value: a reader checks the rows a file holds
+        self._scan_data.add(key, ds)
+
+    def append_encoder(self, time_s: ArrayLike, position_m: ArrayLike) -> None:
+        """Append ``e`` wheel encoder readings (``/encoder/time_s``, ``/encoder/position_m``),
+        each ``[e]``: times on the scan clock, finite and non-decreasing across calls;
+        positions finite [m]. The datasets are created at the first call."""
+        self._check_open()
+        times = _as_series(time_s)
+        position = _as_series(position_m)
+        if times is None or position is None or times.shape != position.shape:
+            raise self._error(
+                "append_encoder: time_s and position_m must be 1-D arrays of numbers of one length"
+            )
+        if self._encoder_data is None:
+            datasets = {
+                name: self._file.create_dataset(f"encoder/{name}", **self._series_options)
+                for name in _ENCODER_SERIES
+            }
+            self._encoder_data = _GrowingDatasets(datasets, _VEHICLE_STAGE)
+        e = times.shape[0]
+        if e == 0:
+            return
+        _check_monotonic(
+            times, self._last_encoder_time_s, "encoder time_s", self._encoder_readings, self._error
+        )
+        bad = ~np.isfinite(position)
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise self._error(
+                f"append_encoder: position_m[{self._encoder_readings + i}] is {position[i]}, "
+                "not finite"
+            )
+        self._encoder_data.append({"time_s": times, "position_m": position}, e)
+        self._encoder_readings += e
+        self._last_encoder_time_s = float(times[-1])
+        self._maybe_flush()
+
     def _check_open(self) -> None:
         if self._closed:
             raise ValueError(f"{self.path}: run file writer is closed")
@@ -597,11 +710,16 @@ class RunFileWriter:
         if time.monotonic() - self._last_flush >= self._flush_interval_s:
             self.flush()
 
+    def _commit(self) -> None:
+        self._scan_data.commit()
+        self._vehicle_data.commit()
+        if self._encoder_data is not None:
+            self._encoder_data.commit()
+
     def flush(self) -> None:
         """Write staged scans and samples and flush the HDF5 file to the operating system."""
         self._check_open()
-        self._scan_data.commit()
-        self._vehicle_data.commit()
+        self._commit()
         self._file.flush()
         self._last_flush = time.monotonic()
 
@@ -611,8 +729,7 @@ class RunFileWriter:
         if self._closed:
             return
         try:
-            self._scan_data.commit()
-            self._vehicle_data.commit()
+            self._commit()
             self._file.attrs[COMPLETED_AT_ATTR] = _utc_now_iso()
             self._file.attrs[COMPLETED_ATTR] = np.int64(self._scans)
             self._file.attrs[COMPLETE_ATTR] = True  # last: a crash before it reads interrupted
@@ -625,8 +742,7 @@ class RunFileWriter:
         if self._closed:
             return
         try:
-            self._scan_data.commit()
-            self._vehicle_data.commit()
+            self._commit()
         finally:
             self._closed = True
             self._file.close()
@@ -792,11 +908,15 @@ class RunFile:
 
         self._series = {name: self._dataset_1d(f"/scans/{name}") for name in _SCAN_SERIES}
         self._lines, bit_depths, offsets = self._camera_datasets()
+        self._valid = self._valid_datasets()
         self._vehicle = {name: self._dataset_1d(f"/vehicle/{name}") for name in _VEHICLE_SERIES}
 
         lengths = {f"/scans/{name}": int(ds.shape[0]) for name, ds in self._series.items()}
         lengths.update(
             (f"/cameras/{name}/lines", int(ds.shape[0])) for name, ds in self._lines.items()
+        )
+        lengths.update(
+            (f"/cameras/{name}/valid", int(ds.shape[0])) for name, ds in self._valid.items()
         )
         vehicle_lengths = {
             f"/vehicle/{name}": int(ds.shape[0]) for name, ds in self._vehicle.items()
@@ -806,6 +926,8 @@ class RunFile:
             self._check_held(ds, f"/scans/{where}", scans)
         for where, ds in self._lines.items():
             self._check_held(ds, f"/cameras/{where}/lines", scans)
+        for where, ds in self._valid.items():
+            self._check_held(ds, f"/cameras/{where}/valid", scans)
         for where, ds in self._vehicle.items():
             self._check_held(ds, f"/vehicle/{where}", samples)
         self._check_series(self._series["position_m"], "/scans/position_m", scans)
@@ -1016,6 +1138,21 @@ class RunFile:
             bit_depths[name] = int(bit_depth)
         return lines, bit_depths, offsets
 
+    def _valid_datasets(self) -> dict[str, Any]:
+        """The cameras' optional ``valid`` flags (FORMATS.md): bool ``[N]``."""
+        valid: dict[str, Any] = {}
+        for name in self._lines:
+            where = f"/cameras/{name}/valid"
+            if "valid" not in self._file[f"/cameras/{name}"]:
+                continue
+            ds = self._object(where, h5py.Dataset)
+            if ds.dtype != np.bool_:
+                raise self._fail(f"{where} has dtype {ds.dtype}, expected bool")
+            if ds.ndim != 1:
+                raise self._fail(f"{where} has shape {ds.shape}, expected 1-D [N]")
+            valid[name] = self._reopen_with_cache(ds)
+        return valid
+
     def _check_held(self, ds: Any, where: str, rows: int) -> None:
         """Refuse to read ``rows`` rows of ``ds`` unless its file stores them (``_rows_held``),
         before anything streams: a forged shape would read fill values for days."""
@@ -1147,7 +1284,8 @@ class RunFile:
         return ScanBlock(first, position_m, time_s, self.camera_lines(first, last), unread)
 
     def camera_lines(self, first: int, last: int) -> dict[str, CameraLines]:
-        """Every camera's lines of scans ``first:last``, fresh arrays ``[last - first, W]``."""
+        """Every camera's lines of scans ``first:last``, fresh arrays ``[last - first, W]``,
+        with their ``valid`` flags ``[last - first]`` where the file has them (else None)."""
         if not self._file:
             raise ValueError(f"{self.path}: run file is closed")
         bit_depths = self.header.camera_bit_depth
@@ -1157,6 +1295,11 @@ class RunFile:
                 lines=_read_rows(ds, first, last, np.dtype(f"u{ds.dtype.itemsize}")),
                 bit_depth=bit_depths[name],
                 offset_px=offsets.get(name, 0),
+                valid=(
+                    _read_rows(self._valid[name], first, last, np.bool_)
+                    if name in self._valid
+                    else None
+                ),
             )
             for name, ds in self._lines.items()
         }

@@ -49,7 +49,21 @@ __all__ = [
 
 
 class ScanStream(Protocol):
-    """An open acquisition: a run's header and its scans in blocks."""
+    """An open acquisition: a run's header and its scans in blocks.
+
+    Optional attributes, read with ``getattr`` (a stream without them is as if False/None):
+
+    * ``positions_from_encoder: bool``: its blocks carry NaN ``position_m`` (free-running
+      cameras): the recorder interpolates each scan's position from the vehicle stream's
+      ``encoder_readings`` at its time, and writes the readings to ``/encoder/*``.
+    * ``clock_zero_unix_s: float | None``: the host's UNIX time of scan time 0 (a live
+      source; known once its first block was yielded): the recorder passes it to the
+      vehicle stream's ``align_clock``.
+
+    A block's camera lines may be marked invalid (``CameraLines.valid``): lines the camera
+    did not deliver. A block's arrays must stay as they are after the next block is asked
+    for: the recorder may hold blocks a while (positions from the encoder).
+    """
 
     header: RunHeader
 
@@ -64,6 +78,14 @@ class VehicleStream(Protocol):
     ``vehicle_samples(until_s)`` yields the samples up to ``until_s`` (scan clock) available
     now, in blocks, times non-decreasing across calls; a sample whose fault verdict needs
     later samples may be held back until a later call, or until ``final=True``.
+
+    Optional methods, looked up with ``getattr`` (other vehicle sources need not have them):
+
+    * ``encoder_readings(until_s, *, final=False) -> Iterable[EncoderReadings]``: the wheel
+      encoder's good readings up to ``until_s``, as ``vehicle_samples`` gives samples (the
+      two may be called in turn over the same times: neither loses the other's data).
+    * ``align_clock(clock_zero_unix_s) -> None``: scan time 0 is this host UNIX time; called
+      once, before any samples are asked for, when the scan source knows it.
     """
 
     def vehicle_samples(

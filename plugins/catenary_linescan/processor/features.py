@@ -349,6 +349,10 @@ class LineFeatures:
             values[f.name] = np.zeros(0, dtype=dtype)
         return cls(**values)
 
+    def select(self, keep: NDArray[np.bool_]) -> LineFeatures:
+        """The candidates where ``keep`` (bool, shape (m,)) is true, in order."""
+        return type(self)(**{f.name: getattr(self, f.name)[keep] for f in fields(self)})
+
     @classmethod
     def concatenate(cls, parts: list[LineFeatures], offsets: list[int]) -> LineFeatures:
         """Join the features of consecutive blocks; ``offsets`` are added to each one's scans."""

@@ -402,7 +402,9 @@ class StagedBlock:
 class LineScanStage:
     """The stateless part of :class:`LineScanProcessor` (its ``stage``): features,
     matching, contact points and face widths of one block, from the rig alone; picklable,
-    so that blocks may be staged in worker processes."""
+    so that blocks may be staged in worker processes. A line its camera did not deliver
+    (``CameraLines.valid`` false) gives no candidate: that camera did not see the scan, as
+    a blinded one, and the others match without it (two at least)."""
 
     rig_name: str
     names: tuple[str, ...]
@@ -444,7 +446,15 @@ class LineScanStage:
                 raise UserError(
                     f"camera {name!r} has {lines.lines.shape[0]} lines in a block of {n} scans"
                 )
-            features.append(extract_features(lines.lines, lines.bit_depth, config=self.features))
+            found = extract_features(lines.lines, lines.bit_depth, config=self.features)
+            if lines.valid is not None:  # no line delivered: the camera did not see the scan
+                if lines.valid.shape != (n,):
+                    raise UserError(
+                        f"camera {name!r} has {lines.valid.shape} valid flags in a block of "
+                        f"{n} scans"
+                    )
+                found = found.select(lines.valid[found.scan])
+            features.append(found)
         offsets = [block.cameras[name].offset_px for name in self.names]
         candidates = pad_candidates(features, n, self.matching.max_candidates, offsets)
         cameras = list(self.cameras)
