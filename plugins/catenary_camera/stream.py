@@ -98,8 +98,11 @@ class _Reader(threading.Thread):
         self.last_error = ""
 
     def place(self, frame: Frame) -> _Placed:
-        """Map the frame's time to the host clock and unpack its lines."""
+        """Map the frame's time to the host clock (its arrival until the clock is fitted) and
+        unpack its lines."""
         self.clock.add(frame.device_time_s, frame.host_time_s)
+        fit = self.clock.fit()
+        time_s = frame.host_time_s if fit is None else float(fit.to_host(frame.device_time_s))
         lines = None
         if frame.complete and frame.data is not None:
             try:
@@ -109,9 +112,7 @@ class _Reader(threading.Thread):
             if lines is not None and lines.shape[0] != self._settings.lines_per_frame:
                 self.last_error = f"frame of {lines.shape[0]} lines"
                 lines = None
-        return _Placed(
-            self.camera.name, frame.frame_id, self.clock.to_host(frame.device_time_s), lines
-        )
+        return _Placed(self.camera.name, frame.frame_id, time_s, lines)
 
     def _send(self, item: _Placed | _Link) -> None:
         """Queue ``item``, waiting while the queue is full (the frames then wait in the
@@ -285,7 +286,7 @@ class GigeStream:
 
     def clock_fits(self) -> dict[str, ClockFit | None]:
         """Each camera's clock against the host's (offset, drift, residual), if fitted."""
-        return {name: reader.clock.fit for name, reader in self._readers.items()}
+        return {name: reader.clock.fit() for name, reader in self._readers.items()}
 
     def status(self) -> str:
         """The live line: per camera its lines per second since the last call, lines lost
@@ -306,7 +307,7 @@ class GigeStream:
         lines = []
         for name, reader in self._readers.items():
             counts = self._assembler.counts(name)
-            fit = reader.clock.fit
+            fit = reader.clock.fit()
             clock = (
                 f"clock offset {fit.offset_s:+.6f} s, drift {fit.drift_ppm:+.2f} ppm, "
                 f"residual {fit.residual_s * 1e6:.0f} µs"
@@ -352,19 +353,28 @@ def _first_frames(
     return first
 
 
+def _backend(name: str) -> Callable[[CameraSettings, GigeSettings], CameraBackend]:
+    """The camera backend called ``name`` in the settings (imported only when chosen)."""
+    if name == "gentl":
+        from .gentl import GenTLCamera
+
+        return GenTLCamera
+    from .aravis import AravisCamera
+
+    return AravisCamera
+
+
 def open_gige(
     settings: Mapping[str, Any],
     backend: Callable[[CameraSettings, GigeSettings], CameraBackend] | None = None,
 ) -> GigeStream:
     """Open the ``gige`` source (settings: :mod:`catenary_camera.settings`).
 
-    ``backend`` makes a camera's backend (default: the settings' ``backend``, Aravis).
+    ``backend`` makes a camera's backend (default: the settings' ``backend``).
     """
     parsed = parse_settings(settings)
     if backend is None:
-        from .aravis import AravisCamera
-
-        backend = AravisCamera
+        backend = _backend(parsed.backend)
     backends: dict[str, CameraBackend] = {}
     try:
         for camera in parsed.cameras:
