@@ -103,23 +103,33 @@ def _find(harvester: Any, camera: CameraSettings) -> Any:
     return found[0]
 
 
+def _check_producer(file: str) -> None:
+    """``UserError`` in one line if ``file`` does not load as a GenTL producer (harvesters
+    only logs that, and finds no devices)."""
+    from genicam.gentl import GenericException, GenTLProducer
+
+    producer = GenTLProducer.create_producer()
+    try:
+        producer.open(file)
+    except GenericException as exc:
+        raise UserError(
+            f"source 'gige': setting cti = {file!r}: not a GenTL producer ({one_line(exc)})"
+        ) from None
+    producer.close()
+
+
 def _open_acquirer(cti: tuple[str, ...], camera: CameraSettings) -> tuple[Any, str]:
     """Open ``camera`` through the shared Harvester of ``cti`` (module docstring): its
     ``ImageAcquirer`` and the device's transport layer type (``GEV``, ``CXP``, ...)."""
     with _LOCK:
         harvester, users = _HARVESTERS.get(cti, (None, 0))
         if harvester is None:
+            for file in cti:
+                _check_producer(file)
             harvester = load_harvester()()
-            try:
-                for file in cti:
-                    harvester.add_file(file, check_existence=True)
-                harvester.update()
-            except Exception as exc:  # genicam's errors, OSError: not a GenTL producer
-                harvester.reset()
-                raise UserError(
-                    f"source 'gige': GenTL producer {', '.join(cti)}: cannot be loaded "
-                    f"({one_line(exc)})"
-                ) from None
+            for file in cti:
+                harvester.add_file(file)
+            harvester.update()
         try:
             info = _find(harvester, camera)
             try:
