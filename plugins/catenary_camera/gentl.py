@@ -46,7 +46,7 @@ from .settings import CameraSettings, GigeSettings
 
 __all__ = ["GenTLCamera", "load_harvester"]
 
-POLL_INTERVAL_S = 0.001  # a reader's sleep between two asks for a buffer [s]
+POLL_INTERVAL_S = 0.002  # a reader's sleep between two asks for a buffer [s]
 POLL_WAIT_S = 1e-4  # how long one ask spins through the producer's (zero-wait) events [s]
 PACKET_SIZE = ("GevSCPSPacketSize",)
 EXTENDED_IDS = "GevGVSPExtendedIDMode"
