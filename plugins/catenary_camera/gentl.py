@@ -14,27 +14,29 @@ the producer) and configured through the remote device's node map, by the same s
 feature names as every backend (:func:`catenary_camera.features.configure`); a value the
 device refuses is one line. ``packet_size`` sets ``GevSCPSPacketSize``.
 
-**Frames** come from ``ImageAcquirer.try_fetch`` as raw GenTL buffers. genicam holds Python's
-GIL while it waits for a buffer, which starves the other threads (the assembly, the writer),
-so the acquirer's own wait is 0 and a reader polls: it asks, and sleeps
-:data:`POLL_INTERVAL_S` between asks. A buffer is complete if GenTL says so, has no line
-padding and holds the frame's bytes (harvesters itself drops a buffer GenTL marks incomplete:
-its lines then show as a gap in the frame ids). Its bytes are copied out and the buffer goes
-straight back to the producer. The frame id is GenTL's (16 bits wrapping, 1-65535, for GigE
-Vision devices without extended ids; else never wrapping). The device's timestamp is used
-when the producer gives one, else the host's time (as for an Aravis frame stamped 0). GenTL
-gives no host time of arrival, so the host time is when the frame was fetched: without device
-timestamps, the frames that queued up before the first read after a (re)connection are
-dropped (the newest is read), and a reader that falls behind gives late times, which the
-assembly corrects by resyncing (:mod:`catenary_camera.assembly`). The simulated producer
-``viky.cti`` of genicam gives no timestamps; frame grabbers do.
+**Frames** come from ``ImageAcquirer.try_fetch`` as raw GenTL buffers, fetched by a thread
+of the camera's own from the start of its acquisition (:class:`_Poller`), so that a frame's
+host time is its arrival, whenever the stream reads it: GenTL gives no host time of arrival.
+genicam holds Python's GIL while it waits for a buffer, which would starve the other threads
+(the assembly, the writer), so the acquirer's own wait is 0 and the thread polls: it asks,
+and sleeps :data:`POLL_INTERVAL_S` between asks (the host time is late by that much at most,
+plus the scheduler's delay). A buffer is complete if GenTL says so, has no line padding and
+holds the frame's bytes (harvesters itself drops a buffer GenTL marks incomplete: its lines
+then show as a gap in the frame ids). Its bytes are copied out and the buffer goes straight
+back to the producer; up to ``buffers`` frames wait for the stream, then the producer's
+buffers fill. The frame id is GenTL's (16 bits wrapping, 1-65535, for GigE Vision devices
+without extended ids; else never wrapping). The device's timestamp is used when the producer
+gives one, else the host's time (as for an Aravis frame stamped 0): genicam's simulated
+producer ``viky.cti`` gives none.
 """
 
 from __future__ import annotations
 
 import contextlib
+import queue
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 from catenary.errors import UserError, one_line
@@ -46,7 +48,7 @@ from .settings import CameraSettings, GigeSettings
 
 __all__ = ["GenTLCamera", "load_harvester"]
 
-POLL_INTERVAL_S = 0.002  # a reader's sleep between two asks for a buffer [s]
+POLL_INTERVAL_S = 0.002  # a poller's sleep between two asks for a buffer [s]
 POLL_WAIT_S = 1e-4  # how long one ask spins through the producer's (zero-wait) events [s]
 PACKET_SIZE = ("GevSCPSPacketSize",)
 EXTENDED_IDS = "GevGVSPExtendedIDMode"
@@ -161,15 +163,6 @@ def _close_acquirer(cti: tuple[str, ...], acquirer: Any) -> None:
             harvester.reset()
 
 
-def _newest(acquirer: Any, buffer: Any) -> Any:
-    """The newest of the buffers queued up now, ``buffer`` the oldest; the others go back to
-    the producer. Without timestamps a queued frame's time is unknown (module docstring)."""
-    while (newer := acquirer.try_fetch(timeout=POLL_WAIT_S, is_raw=True)) is not None:
-        buffer.parent.queue_buffer(buffer)
-        buffer = newer
-    return buffer
-
-
 class _NodeMap:
     """A GenTL remote device's node map as a :class:`~catenary_camera.features.FeatureAccess`."""
 
@@ -235,6 +228,42 @@ class _NodeMap:
         return tuple(self._node(name).symbolics)
 
 
+class _Poller(threading.Thread):
+    """Fetches a started acquirer's buffers as they arrive, stamps them with the host's time
+    and queues their frames for :meth:`GenTLCamera.read` (module docstring). A failure is
+    kept in ``error`` (``CameraUnavailable``, or ``UserError`` from ``to_frame``) and ends it."""
+
+    def __init__(
+        self, acquirer: Any, to_frame: Callable[[Any, float], Frame], size: int, device: str
+    ) -> None:
+        super().__init__(name=f"gentl-{device}", daemon=True)
+        self._acquirer = acquirer
+        self._to_frame = to_frame
+        self._device = device
+        self.frames: queue.Queue[Frame] = queue.Queue(maxsize=size)
+        self.stopped = threading.Event()
+        self.error: CameraUnavailable | UserError | None = None
+
+    def run(self) -> None:
+        try:
+            while not self.stopped.is_set():
+                buffer = self._acquirer.try_fetch(timeout=POLL_WAIT_S, is_raw=True)
+                if buffer is None:
+                    self.stopped.wait(POLL_INTERVAL_S)
+                    continue
+                frame = self._to_frame(buffer, time.time())
+                buffer.parent.queue_buffer(buffer)
+                while not self.stopped.is_set():
+                    with contextlib.suppress(queue.Full):
+                        self.frames.put(frame, timeout=POLL_INTERVAL_S)
+                        break
+        except UserError as exc:
+            self.error = exc
+        except Exception as exc:  # genicam's errors: the device or its stream is gone
+            problem = one_line(exc)
+            self.error = CameraUnavailable(f"camera {self._device}: connection lost ({problem})")
+
+
 class GenTLCamera:
     """One rig camera through a GenTL producer (the
     :class:`~catenary_camera.backend.CameraBackend`; module docstring)."""
@@ -249,7 +278,7 @@ class GenTLCamera:
             camera.pixel_format, camera.width, acquisition.lines_per_frame
         )
         self._acquirer: Any = None
-        self._first = False  # the next read is the first since (re)connecting
+        self._poller: _Poller | None = None
 
     def connect(self) -> None:
         settings, cti = self._settings, self._acquisition.cti
@@ -270,7 +299,6 @@ class GenTLCamera:
             acquirer.num_buffers = max(self._acquisition.buffers, acquirer.min_num_buffers)
             acquirer.timeout_period_on_update_event_data_call = 0  # poll (module docstring)
             acquirer.start()
-            self._first = True
         except UserError:
             self.disconnect()
             raise
@@ -278,32 +306,23 @@ class GenTLCamera:
             self.disconnect()
             problem = one_line(exc)
             raise CameraUnavailable(f"camera {settings.device}: cannot start ({problem})") from None
+        size = self._acquisition.buffers
+        self._poller = _Poller(acquirer, self._frame, size, settings.device)
+        self._poller.start()
 
     def read(self, timeout_s: float) -> Frame | None:
-        acquirer, device = self._acquirer, self._settings.device
-        if acquirer is None:
-            raise CameraUnavailable(f"camera {device}: not connected")
-        deadline = time.monotonic() + timeout_s
+        poller = self._poller
+        if poller is None:
+            raise CameraUnavailable(f"camera {self._settings.device}: not connected")
         try:
-            buffer = acquirer.try_fetch(timeout=POLL_WAIT_S, is_raw=True)
-            while buffer is None and time.monotonic() < deadline:
-                time.sleep(POLL_INTERVAL_S)
-                buffer = acquirer.try_fetch(timeout=POLL_WAIT_S, is_raw=True)
-            if buffer is None:
-                return None
-            if self._first and not _optional(buffer, "timestamp_ns"):
-                buffer = _newest(acquirer, buffer)
-            self._first = False
-            frame = self._frame(buffer, time.time())
-            buffer.parent.queue_buffer(buffer)
-        except UserError:
-            raise
-        except Exception as exc:  # genicam's errors: the device or its stream is gone
-            raise CameraUnavailable(f"camera {device}: connection lost ({one_line(exc)})") from None
-        return frame
+            return poller.frames.get(timeout=timeout_s)
+        except queue.Empty:
+            if poller.error is not None:
+                raise poller.error from None
+            return None
 
     def _frame(self, buffer: Any, host_s: float) -> Frame:
-        """The frame of a raw GenTL buffer fetched at ``host_s`` [s, UNIX time]."""
+        """The frame of a raw GenTL buffer that arrived at ``host_s`` [s, UNIX time]."""
         frame_id = _optional(buffer, "frame_id")
         if frame_id is None:
             raise UserError(
@@ -331,6 +350,10 @@ class GenTLCamera:
         )
 
     def disconnect(self) -> None:
+        poller, self._poller = self._poller, None
+        if poller is not None:
+            poller.stopped.set()
+            poller.join()
         acquirer, self._acquirer = self._acquirer, None
         if acquirer is not None:
             _close_acquirer(self._acquisition.cti, acquirer)

@@ -27,7 +27,7 @@ VIKY = Path(genicam.__file__).parent / "viky.cti"
 NAMES = ("red", "green", "blue")
 WIDTH = 256
 LINES = 100  # lines per frame (viky's least Height)
-RATE_HZ = 500.0  # lines per second: 5 frames per second
+RATE_HZ = 300.0  # lines per second: 3 frames per second (a resync needs an 83 ms delay)
 BALL = 20  # the ball's rows (and columns)
 
 
@@ -75,7 +75,7 @@ def test_three_cameras_record_a_run_file_in_step_by_frame_id(tmp_path: Path) -> 
             "--source-option", f"line_rate_hz={RATE_HZ}",
             "--source-option", f"lines_per_frame={LINES}",
             "--vehicle-source", "can", "--vehicle-option", f"log={log}",
-            "--max-scans", "1500", "--block-scans", "250",
+            "--max-scans", "1000", "--block-scans", "250",
         ],
     )  # fmt: skip
     assert result.exit_code == 0, result.output
@@ -86,20 +86,21 @@ def test_three_cameras_record_a_run_file_in_step_by_frame_id(tmp_path: Path) -> 
         assert run.header.camera_pixels == dict.fromkeys(NAMES, WIDTH)
         blocks = list(run.blocks(500))
     position_m = np.concatenate([b.position_m for b in blocks])
-    assert position_m.shape == (1500,)
+    assert position_m.shape == (1000,)
     np.testing.assert_allclose(np.diff(position_m), 10.0 / RATE_HZ, atol=0.002)
     for name in NAMES:
         lines = np.concatenate([b.cameras[name].lines for b in blocks])
         valid = np.concatenate([valid_lines(b.cameras[name]) for b in blocks])
-        # every line from the camera's first whole frame on (nothing lost at 5 frames/s)
+        # every line from the camera's first whole frame on (nothing lost at 3 frames/s)
         first_whole = int(np.argmax(valid)) + LINES
-        assert valid[first_whole:].all(), name
+        lost = np.flatnonzero(~valid[first_whole:]) + first_whole
+        assert lost.size == 0, (name, lost, result.stdout)
         start, column, length = (run[1:-1] for run in ball_runs(lines, valid))
         # the ball's rows of every frame arrive whole, and it moves one pixel right and one
         # line down per frame: a frame further on is ``LINES + 1`` scans further per pixel,
         # one frame per frame id, in step (the first and last runs may be cut by the
         # camera's first frame and the recording's end, and are left out)
-        assert start.size >= 10, name
+        assert start.size >= 6, name
         assert (length == BALL).all(), (name, length)
         np.testing.assert_array_equal(np.diff(start), (LINES + 1) * np.diff(column), name)
 
@@ -107,10 +108,10 @@ def test_three_cameras_record_a_run_file_in_step_by_frame_id(tmp_path: Path) -> 
 def test_frames_without_device_timestamps_take_the_hosts_time() -> None:
     parsed = parse_settings(settings())
     camera = GenTLCamera(parsed.cameras[0], parsed)
+    before = time.time()
     camera.connect()
     try:
         frames = []
-        before = time.time()
         while len(frames) < 2:
             frame = camera.read(1.0)
             assert frame is not None
