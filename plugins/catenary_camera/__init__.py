@@ -1,7 +1,9 @@
-"""Live line-scan cameras: the ``gige`` scan source (GigE Vision through Aravis).
+"""Live line-scan cameras: the ``gige`` scan source (GigE Vision through Aravis, or a vendor's
+GenTL producer through harvesters: :mod:`catenary_camera.gentl`).
 
-The optional extra ``camera`` (``pip install 'catenary[camera]'``: PyGObject) with Aravis's
-introspection data (Debian: ``gir1.2-aravis-0.8``). ``catenary record OUT.h5 --source gige
+The optional extra ``camera`` (``pip install 'catenary[camera]'``: PyGObject, harvesters) with
+Aravis's introspection data (Debian: ``gir1.2-aravis-0.8``) for backend ``aravis``, a GenTL
+producer (``.cti``) for backend ``gentl``. ``catenary record OUT.h5 --source gige
 --vehicle-source can ...`` records a run from the rig's cameras and the CAN bus. Settings:
 :mod:`catenary_camera.settings`; how frames become scans: :mod:`catenary_camera.assembly`
 and :mod:`catenary_camera.stream`. Modules are imported inside the hook's callable so that
@@ -29,7 +31,8 @@ def catenary_sources() -> list[Source]:
     return [
         Source(
             "gige",
-            "Line-scan cameras over GigE Vision (Aravis; the optional extra 'camera')",
+            "Line-scan cameras through Aravis (GigE Vision) or a GenTL producer (the optional "
+            "extra 'camera')",
             open_gige_source,
         )
     ]

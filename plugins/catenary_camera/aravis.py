@@ -23,13 +23,11 @@ from typing import Any
 
 from catenary.errors import UserError, one_line
 
-from .backend import CameraUnavailable, Frame
+from .backend import GV_FRAME_ID_MODULUS, CameraUnavailable, Frame
 from .features import Value, configure
 from .settings import CameraSettings, GigeSettings
 
 __all__ = ["AravisCamera", "load_aravis"]
-
-GV_FRAME_ID_MODULUS = 65535
 
 
 def load_aravis() -> Any:

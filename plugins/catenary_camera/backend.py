@@ -1,4 +1,5 @@
-"""What the ``gige`` source needs of a camera backend (Aravis today, GenTL later).
+"""What the ``gige`` source needs of a camera backend: Aravis (:mod:`catenary_camera.aravis`)
+or a GenTL producer through harvesters (:mod:`catenary_camera.gentl`).
 
 A backend opens one rig camera, configures it from the same settings
 (:mod:`catenary_camera.settings`, through :mod:`catenary_camera.features`), starts its
@@ -11,7 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol
 
-__all__ = ["CameraBackend", "CameraUnavailable", "Frame"]
+__all__ = ["GV_FRAME_ID_MODULUS", "CameraBackend", "CameraUnavailable", "Frame"]
+
+GV_FRAME_ID_MODULUS = 65535  # GigE Vision 1.x's 16-bit frame (block) ids run 1-65535
 
 
 class CameraUnavailable(Exception):

@@ -1,10 +1,11 @@
 """Camera features by their GenICam standard names, the same for every backend.
 
-A camera is configured through a :class:`FeatureAccess` (Aravis's camera today; a GenTL node
-map later). Each setting names its features in order of preference, the Standard Features
-Naming Convention's current name first and the older ``...Abs`` name after it
-(``ExposureTime``, then ``ExposureTimeAbs``); the first one the camera implements is set and
-read back. A camera that has none of them is one line naming the camera and the names tried.
+A camera is configured through a :class:`FeatureAccess` (Aravis's camera, or the remote
+device's node map of a GenTL producer). Each setting names its features in order of
+preference, the Standard Features Naming Convention's current name first and the older
+``...Abs`` name after it (``ExposureTime``, then ``ExposureTimeAbs``); the first one the
+camera implements is set and read back. A camera that has none of them is one line naming
+the camera and the names tried.
 
 The line rate of a free-running line-scan camera is ``AcquisitionLineRate`` (or
 ``AcquisitionLineRateAbs``). A camera without either (an area-scan camera such as Aravis's

@@ -5,7 +5,11 @@ Keys of the source's settings (``--source-option KEY=VALUE`` or ``[record] sourc
 =======================  =====================================================================
 ``cameras``              a table of the rig's cameras by name (the calibration's names), each a
                          table of the camera keys below (required, at least one)
-``backend``              ``aravis`` (GigE Vision through Aravis; the only one so far)
+``backend``              ``aravis`` (GigE Vision through Aravis) or ``gentl`` (a vendor's GenTL
+                         producer through harvesters: frame grabbers, cameras) (``aravis``)
+``cti``                  backend ``gentl``: the GenTL producer, a ``.cti`` file or a list of
+                         them (default: every ``.cti`` file in the folders that the standard
+                         variable ``GENICAM_GENTL64_PATH`` lists, separated by ``:``)
 ``trigger``              ``free`` (free-running at ``line_rate_hz``) or ``encoder`` (the wheel
                          encoder on the hardware line ``trigger_line``) (``free``)
 ``line_rate_hz``         free-running line rate [Hz] (required with ``trigger = "free"``)
@@ -31,14 +35,16 @@ Camera keys (in ``cameras.NAME``; ``pixel_format``, ``exposure_us`` and ``packet
 also be given at the top level as the default of every camera):
 
 =======================  =====================================================================
-``address``              the camera's IP address or host name; or
-``serial``               its serial number (found by discovery)
+``address``              backend ``aravis``: the camera's IP address or host name; or
+``serial``               its serial number (found by discovery); or
+``device_id``            backend ``gentl``: the device's id in its GenTL producer
 ``width``                pixels per line recorded (required)
 ``offset_px``            the first sensor pixel recorded (a region of interest) (0)
 ``pixel_format``         ``Mono8``, ``Mono10``, ``Mono12``, ``Mono16``, ``Mono10p``,
                          ``Mono12p``, ``Mono10Packed``, ``Mono12Packed`` (``Mono8``)
 ``exposure_us``          exposure time [µs] (default: the camera's own setting)
-``packet_size``          GigE Vision stream packet size [bytes] (default: the camera's)
+``packet_size``          GigE Vision stream packet size [bytes] (default: the camera's; backend
+                         ``gentl``: the device's ``GevSCPSPacketSize``)
 =======================  =====================================================================
 
 Every error names the key and the value in one line (:class:`~catenary.errors.UserError`).
@@ -47,24 +53,39 @@ Every error names the key and the value in one line (:class:`~catenary.errors.Us
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Final
 
 from catenary.errors import UserError
 
 __all__ = ["BACKENDS", "CameraSettings", "GigeSettings", "parse_settings"]
 
-BACKENDS: Final = ("aravis",)
+BACKENDS: Final = ("aravis", "gentl")
+GENTL_PATH_VARIABLE: Final = "GENICAM_GENTL64_PATH"
 TRIGGERS: Final = ("free", "encoder")
 CAMERA_KEYS: Final = frozenset(
-    {"address", "serial", "width", "offset_px", "pixel_format", "exposure_us", "packet_size"}
+    {
+        "address",
+        "serial",
+        "device_id",
+        "width",
+        "offset_px",
+        "pixel_format",
+        "exposure_us",
+        "packet_size",
+    }
 )
+DEVICE_KEYS: Final = {"aravis": ("address", "serial"), "gentl": ("serial", "device_id")}
+"""The keys that name a camera's device, by backend."""
 SHARED_CAMERA_KEYS: Final = frozenset({"pixel_format", "exposure_us", "packet_size"})
 TOP_KEYS: Final = frozenset(
     {
         "cameras",
         "backend",
+        "cti",
         "trigger",
         "line_rate_hz",
         "trigger_line",
@@ -88,7 +109,8 @@ _SOURCE = "source 'gige'"
 
 @dataclass(frozen=True)
 class CameraSettings:
-    """One rig camera: the device (``address`` or ``serial``) and its acquisition."""
+    """One rig camera: the device (``address``, ``serial`` or ``device_id``) and its
+    acquisition."""
 
     name: str
     address: str | None
@@ -98,11 +120,17 @@ class CameraSettings:
     pixel_format: str
     exposure_us: float | None
     packet_size: int | None
+    device_id: str | None = None
 
     @property
     def device(self) -> str:
-        """How the camera is named in messages (``cam1 (127.0.0.2)``)."""
-        return f"{self.name} ({self.address or 'serial ' + str(self.serial)})"
+        """How the camera is named in messages (``cam1 (127.0.0.2)``, ``cam1 (serial 0)``,
+        ``cam1 (id VikyTL_DEV_red)``)."""
+        if self.address is not None:
+            return f"{self.name} ({self.address})"
+        if self.device_id is not None:
+            return f"{self.name} (id {self.device_id})"
+        return f"{self.name} (serial {self.serial})"
 
 
 @dataclass(frozen=True)
@@ -111,6 +139,7 @@ class GigeSettings:
 
     cameras: tuple[CameraSettings, ...]
     backend: str = "aravis"
+    cti: tuple[str, ...] = ()  # backend gentl: the GenTL producers' files
     trigger: str = "free"
     line_rate_hz: float | None = None
     trigger_line: str = "Line0"
@@ -153,7 +182,7 @@ def _text(key: str, value: object) -> str:
     return value
 
 
-def _camera(name: str, table: object, defaults: Mapping[str, Any]) -> CameraSettings:
+def _camera(name: str, table: object, defaults: Mapping[str, Any], backend: str) -> CameraSettings:
     from catenary_camera.pixels import PIXEL_FORMATS
 
     where = f"cameras.{name}"
@@ -166,14 +195,18 @@ def _camera(name: str, table: object, defaults: Mapping[str, Any]) -> CameraSett
             f"(known: {', '.join(sorted(CAMERA_KEYS))})"
         )
     merged = {**defaults, **table}
-    address = merged.get("address")
-    serial = merged.get("serial")
-    if (address is None) == (serial is None):
-        raise UserError(f"{_SOURCE}: camera {name!r} needs one of {where}.address or .serial")
-    if address is not None:
-        _text(f"{where}.address", address)
-    if serial is not None:
-        _text(f"{where}.serial", serial)
+    keys = DEVICE_KEYS[backend]
+    for key in sorted({k for ks in DEVICE_KEYS.values() for k in ks} - set(keys)):
+        if key in merged:
+            raise UserError(
+                f"{_SOURCE}: setting {where}.{key} is not for backend {backend!r} "
+                f"(it names a device by {' or '.join(keys)})"
+            )
+    given = [key for key in keys if merged.get(key) is not None]
+    if len(given) != 1:
+        raise UserError(f"{_SOURCE}: camera {name!r} needs one of {where}.{keys[0]} or .{keys[1]}")
+    for key in given:
+        _text(f"{where}.{key}", merged[key])
     if "width" not in merged:
         raise UserError(f"{_SOURCE}: camera {name!r} needs {where}.width")
     width = _positive(f"{where}.width", merged["width"], integer=True)
@@ -191,7 +224,46 @@ def _camera(name: str, table: object, defaults: Mapping[str, Any]) -> CameraSett
         packet_size = _positive(f"{where}.packet_size", packet_size, integer=True)
         if not 576 <= packet_size <= 16384:
             raise _bad(f"{where}.packet_size", packet_size, "576-16384 bytes")
-    return CameraSettings(name, address, serial, width, offset, pixel_format, exposure, packet_size)
+    return CameraSettings(
+        name,
+        merged.get("address"),
+        merged.get("serial"),
+        width,
+        offset,
+        pixel_format,
+        exposure,
+        packet_size,
+        merged.get("device_id"),
+    )
+
+
+def _producers(value: object) -> tuple[str, ...]:
+    """Backend ``gentl``'s producers: the ``cti`` setting, a file or a list of files, else every
+    ``.cti`` file in the folders of ``GENICAM_GENTL64_PATH``; ``UserError`` if there is none."""
+    if value is None:
+        folders = os.environ.get(GENTL_PATH_VARIABLE, "")
+        found = tuple(
+            str(path)
+            for folder in folders.split(os.pathsep)
+            if folder
+            for path in sorted(Path(folder).glob("*.cti"))
+            if path.is_file()
+        )
+        if not found:
+            raise UserError(
+                f"{_SOURCE}: backend 'gentl' needs setting cti (a GenTL producer's .cti file) "
+                f"or {GENTL_PATH_VARIABLE} naming a folder with one "
+                f"({GENTL_PATH_VARIABLE} = {folders!r})"
+            )
+        return found
+    files = [value] if isinstance(value, str) else value
+    if not isinstance(files, list) or not files:
+        raise _bad("cti", value, "a GenTL producer's .cti file or a list of them")
+    for file in files:
+        _text("cti", file)
+        if not Path(file).is_file():
+            raise UserError(f"{_SOURCE}: setting cti = {file!r}: no such file")
+    return tuple(files)
 
 
 def parse_settings(settings: Mapping[str, Any]) -> GigeSettings:
@@ -204,9 +276,15 @@ def parse_settings(settings: Mapping[str, Any]) -> GigeSettings:
     tables = settings.get("cameras")
     if not isinstance(tables, Mapping) or not tables:
         raise _bad("cameras", tables, "a table of the rig's cameras by name")
+    backend = settings.get("backend", "aravis")
+    if backend not in BACKENDS:
+        raise _bad("backend", backend, f"one of {', '.join(BACKENDS)}")
+    if backend != "gentl" and "cti" in settings:
+        raise UserError(f"{_SOURCE}: setting cti is for backend 'gentl', not {backend!r}")
+    cti = _producers(settings.get("cti")) if backend == "gentl" else ()
     defaults = {k: settings[k] for k in SHARED_CAMERA_KEYS if k in settings}
-    cameras = tuple(_camera(str(name), table, defaults) for name, table in tables.items())
-    for key in ("address", "serial"):
+    cameras = tuple(_camera(str(name), table, defaults, backend) for name, table in tables.items())
+    for key in ("address", "serial", "device_id"):
         seen: dict[str, str] = {}
         for camera in cameras:
             value = getattr(camera, key)
@@ -216,9 +294,6 @@ def parse_settings(settings: Mapping[str, Any]) -> GigeSettings:
                 )
             if value is not None:
                 seen[value] = camera.name
-    backend = settings.get("backend", "aravis")
-    if backend not in BACKENDS:
-        raise _bad("backend", backend, f"one of {', '.join(BACKENDS)}")
     trigger = settings.get("trigger", "free")
     if trigger not in TRIGGERS:
         raise _bad("trigger", trigger, "free or encoder")
@@ -256,6 +331,7 @@ def parse_settings(settings: Mapping[str, Any]) -> GigeSettings:
     return GigeSettings(
         cameras=cameras,
         backend=backend,
+        cti=cti,
         trigger=trigger,
         line_rate_hz=line_rate,
         trigger_line=_text("trigger_line", settings.get("trigger_line", "Line0")),

@@ -457,19 +457,28 @@ def _preroll(
     return frames, trackers, pairs
 
 
+def _backend(name: str) -> Callable[[CameraSettings, GigeSettings], CameraBackend]:
+    """The camera backend called ``name`` in the settings (imported only when chosen)."""
+    if name == "gentl":
+        from .gentl import GenTLCamera
+
+        return GenTLCamera
+    from .aravis import AravisCamera
+
+    return AravisCamera
+
+
 def open_gige(
     settings: Mapping[str, Any],
     backend: Callable[[CameraSettings, GigeSettings], CameraBackend] | None = None,
 ) -> GigeStream:
     """Open the ``gige`` source (settings: :mod:`catenary_camera.settings`).
 
-    ``backend`` makes a camera's backend (default: the settings' ``backend``, Aravis).
+    ``backend`` makes a camera's backend (default: the settings' ``backend``).
     """
     parsed = parse_settings(settings)
     if backend is None:
-        from .aravis import AravisCamera
-
-        backend = AravisCamera
+        backend = _backend(parsed.backend)
     backends: dict[str, CameraBackend] = {}
     try:
         for camera in parsed.cameras:

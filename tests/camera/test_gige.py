@@ -19,6 +19,7 @@ import pytest
 from catenary.domain import ScanBlock
 from catenary.errors import UserError
 from catenary_camera.stream import GigeStream, open_gige
+from tests.camera.canlog import can_log
 from tests.camera.fakecam import (
     ADDRESSES,
     Content,
@@ -214,45 +215,6 @@ def test_an_absent_camera_is_one_line(cameras: dict[str, FakeCamera]) -> None:
     chosen["cameras"] = {"cam9": {"address": "127.0.0.9", "width": 512}}
     with pytest.raises(UserError, match=r"camera cam9 \(127\.0\.0\.9\)"):
         open_gige(chosen)
-
-
-def can_log(path: Path, start_unix_s: float, seconds: float, speed_mps: float) -> Path:
-    """A BLF log of the CAN sensors from ``start_unix_s``: the encoder at ``speed_mps`` and
-    steady displacement sensors, every 5 ms (UNIX timestamps, as a live bus gives)."""
-    import can
-
-    from catenary_can.decode import DEFAULT_METRES_PER_PULSE
-    from catenary_can.reader import load_database
-
-    database = load_database()
-    encoder = database.get_message_by_name("WheelEncoder")
-    sensors = database.get_message_by_name("DisplacementSensors")
-    with can.Logger(path) as logger:
-        for i in range(round(seconds / 0.005)):
-            t = start_unix_s + i * 0.005
-            pulses = round(speed_mps * i * 0.005 / DEFAULT_METRES_PER_PULSE)
-            for message, signals in (
-                (encoder, {"pulse_count": pulses, "status": 0, "counter": i % 16}),
-                (
-                    sensors,
-                    {
-                        "left_mm": 2.0,
-                        "right_mm": -1.0,
-                        "lateral_mm": 3.0,
-                        "status": 0,
-                        "counter": i % 16,
-                    },
-                ),
-            ):
-                logger.on_message_received(
-                    can.Message(
-                        timestamp=t,
-                        arbitration_id=message.frame_id,
-                        is_extended_id=False,
-                        data=message.encode(signals),
-                    )
-                )
-    return path
 
 
 @pytest.mark.slow

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -56,7 +57,8 @@ def test_encoder_trigger() -> None:
         ({"pixel_format": "RGB8"}, r"cameras.cam1.pixel_format = 'RGB8': expected one of Mono8"),
         ({"packet_size": 100}, r"cameras.cam1.packet_size = 100: expected 576-16384 bytes"),
         ({"direction": "up"}, r"direction = 'up'"),
-        ({"backend": "gentl"}, r"backend = 'gentl': expected one of aravis"),
+        ({"backend": "pylon"}, r"backend = 'pylon': expected one of aravis, gentl"),
+        ({"cti": "/x.cti"}, r"setting cti is for backend 'gentl', not 'aravis'$"),
     ],
 )
 def test_wrong_settings_are_one_line(change: dict[str, Any], message: str) -> None:
@@ -88,4 +90,82 @@ def test_two_cameras_cannot_share_a_device() -> None:
     settings = base()
     settings["cameras"]["cam2"] = {"address": "192.168.10.11", "width": 8}
     with pytest.raises(UserError, match=r"cameras 'cam1' and 'cam2' share address"):
+        parse_settings(settings)
+
+
+def gentl(tmp_path: Path, **extra: Any) -> dict[str, Any]:
+    (tmp_path / "producer.cti").write_bytes(b"")
+    return {
+        "backend": "gentl",
+        "cti": str(tmp_path / "producer.cti"),
+        "cameras": {
+            "cam1": {"serial": "0", "width": 400},
+            "cam2": {"device_id": "VikyTL_DEV_green", "width": 400},
+        },
+        "line_rate_hz": 2000,
+        **extra,
+    }
+
+
+def test_gentl_cameras_by_serial_or_device_id(tmp_path: Path) -> None:
+    parsed = parse_settings(gentl(tmp_path))
+    assert parsed.backend == "gentl" and parsed.cti == (str(tmp_path / "producer.cti"),)
+    assert [camera.device for camera in parsed.cameras] == [
+        "cam1 (serial 0)",
+        "cam2 (id VikyTL_DEV_green)",
+    ]
+
+
+def test_gentl_producers_from_the_standard_variable(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    folder = tmp_path / "producers"
+    folder.mkdir()
+    for name in ("b.cti", "a.cti", "notes.txt"):
+        (folder / name).write_bytes(b"")
+    settings = gentl(tmp_path)
+    del settings["cti"]
+    monkeypatch.setenv("GENICAM_GENTL64_PATH", f"/nonexistent:{folder}")
+    assert parse_settings(settings).cti == (str(folder / "a.cti"), str(folder / "b.cti"))
+    monkeypatch.setenv("GENICAM_GENTL64_PATH", "/nonexistent")
+    with pytest.raises(UserError, match=r"needs setting cti .* \(GENICAM_GENTL64_PATH = '/none"):
+        parse_settings(settings)
+    monkeypatch.delenv("GENICAM_GENTL64_PATH")
+    with pytest.raises(UserError, match=r"GENICAM_GENTL64_PATH = ''\)$"):
+        parse_settings(settings)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"cti": "/nowhere/producer.cti"}, r"setting cti = '/nowhere/producer.cti': no such file$"),
+        ({"cti": []}, r"setting cti = \[\]: expected a GenTL producer's .cti file or a list"),
+        ({"cti": 3}, r"setting cti = 3: expected"),
+        (
+            {"cameras": {"c": {"address": "10.0.0.1", "width": 8}}},
+            r"setting cameras.c.address is not for backend 'gentl' \(it names a device by "
+            r"serial or device_id\)$",
+        ),
+        (
+            {"cameras": {"c": {"width": 8}}},
+            r"camera 'c' needs one of cameras.c.serial or .device_id$",
+        ),
+        (
+            {"cameras": {"c": {"device_id": "x", "width": 8}, "d": {"device_id": "x", "width": 8}}},
+            r"cameras 'c' and 'd' share device_id 'x'$",
+        ),
+    ],
+)
+def test_wrong_gentl_settings_are_one_line(
+    tmp_path: Path, change: dict[str, Any], message: str
+) -> None:
+    with pytest.raises(UserError, match=message) as error:
+        parse_settings({**gentl(tmp_path), **change})
+    assert "\n" not in str(error.value)
+
+
+def test_a_gentl_device_id_is_not_for_aravis() -> None:
+    settings = base()
+    settings["cameras"]["cam1"] = {"device_id": "DEV_1", "width": 8}
+    with pytest.raises(UserError, match=r"cameras.cam1.device_id is not for backend 'aravis'"):
         parse_settings(settings)
