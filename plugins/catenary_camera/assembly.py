@@ -15,10 +15,13 @@ gap. Frame ids wrap (GigE Vision's 16-bit ids run 1-65535, then 1 again: ``frame
 * Free-running lines (``quantum = 1``): the scan of a frame's first line is its time since
   the run's start times the line rate, rounded. When the ids place a camera's frames more
   than ``resync_lines`` away from where their times do, the camera is placed by time again
-  (``resyncs``: its line clock drifted from the nominal rate): the lines between are invalid,
-  and lines it would repeat are dropped, never written twice. A frame is stamped late (a
-  busy camera or host), never early: its time can only say it is later than its id does,
-  and is believed when the last :data:`RESYNC_FRAMES` frames all say so.
+  (``resyncs``: its line clock drifted from the nominal rate, or it skipped a frame period
+  without skipping a frame id, as Aravis's fake camera does when it wakes a period late): the
+  lines between are invalid, and lines it would repeat are dropped, never written twice. A
+  frame is stamped late (a busy camera or host), never early: its time can only say it is
+  later than its id does, and is believed when the last :data:`RESYNC_FRAMES` frames all say
+  so. Until then the frames that say so are held (:meth:`ScanAssembler.reached` stops before
+  the first of them): a resync moves them with it, a frame on time again confirms them.
 * Encoder-triggered lines (``quantum = N``): every camera sees the same encoder pulses, so
   their frames hold the same lines; a camera's first frame goes to the nearest multiple of
   ``N`` by time, then its ids alone carry it (the speed varies, so time cannot check it).
@@ -84,6 +87,7 @@ class _Camera:
     next_scan: int = 0  # where the next consecutive frame starts
     # how far [lines] the last frames' times place them after their ids (free-running)
     late: deque[float] = field(default_factory=lambda: deque(maxlen=RESYNC_FRAMES))
+    held: int | None = None  # the first scan of the frames held as late (free-running)
     counts: CameraCounts = field(default_factory=CameraCounts)
 
 
@@ -136,12 +140,15 @@ class ScanAssembler:
         return self._cameras[name].counts
 
     def reached(self, name: str) -> int:
-        """The scan after the last line ``name`` has delivered (placed so far)."""
-        return self._cameras[name].next_scan
+        """The scan after the last line ``name`` has delivered (placed so far), or the first
+        scan of its frames held as late (module docstring)."""
+        camera = self._cameras[name]
+        return camera.next_scan if camera.held is None else camera.held
 
     def restart(self, name: str) -> None:
         """Forget ``name``'s frame ids (it reconnected): its next frame is placed by time."""
-        self._cameras[name].last_id = None
+        camera = self._cameras[name]
+        camera.last_id, camera.held = None, None
 
     def add(self, name: str, frame_id: int, time_s: float | None, lines: Lines | None) -> None:
         """A frame of ``name``: its id, its first line's host time [s] and its lines
@@ -166,17 +173,12 @@ class ScanAssembler:
             if not by_time:
                 camera.counts.missing_frames += step - 1
             if not by_time and not self.encoder and time_s is not None:
-                camera.late.append(measured - first)
-                late = min(camera.late)  # stamps come late, never early: the least is right
-                full = len(camera.late) == RESYNC_FRAMES
-                if late < -self._resync_lines or (full and late > self._resync_lines):
-                    first += round(late)
-                    camera.late.clear()
-                    camera.counts.resyncs += 1
+                first += self._check_time(camera, measured - first, first)
         if by_time:
             quantum = n if self.encoder else 1
             first = quantum * round(measured / quantum)
             camera.late.clear()
+            camera.held = None
         camera.last_id = frame_id
         if lines is None:
             camera.counts.incomplete_frames += 1
@@ -188,6 +190,31 @@ class ScanAssembler:
         if self.encoder and first >= self.next_scan and time_s is not None:
             self._anchors.append((first, time_s - self.start_s))
         camera.next_scan = max(camera.next_scan, first + n)
+
+    def _check_time(self, camera: _Camera, lateness: float, first: int) -> int:
+        """How far [lines] to move a free-running frame placed at scan ``first`` by its id,
+        whose time places it ``lateness`` lines later; a resync moves the frames held with it
+        (module docstring)."""
+        camera.late.append(lateness)
+        late = min(camera.late)  # stamps come late, never early: the least is right
+        full = len(camera.late) == RESYNC_FRAMES
+        if late < -self._resync_lines or (full and late > self._resync_lines):
+            shift = round(late)
+            if camera.held is not None and shift > 0:
+                camera.frames = [
+                    (start + shift if start >= camera.held else start, lines)
+                    for start, lines in camera.frames
+                ]
+                camera.next_scan += shift
+            camera.late.clear()
+            camera.held = None
+            camera.counts.resyncs += 1
+            return shift
+        if lateness <= self._resync_lines:
+            camera.held = None  # on time: the frames held were where their ids put them
+        elif camera.held is None:
+            camera.held = first
+        return 0
 
     def take(self, upto: int) -> AssembledScans:
         """Hand out scans ``next_scan .. upto - 1`` (none if ``upto <= next_scan``)."""

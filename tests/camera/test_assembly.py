@@ -82,8 +82,28 @@ def test_frames_whose_times_all_disagree_with_their_ids_are_placed_by_time() -> 
         "a", RESYNC_FRAMES + 2, T0 + (RESYNC_FRAMES + 3) * N / RATE, frame((RESYNC_FRAMES + 3) * N)
     )
     scans = asm.take(asm.reached("a"))
-    last = scans.lines["a"][-N:]  # the frames after the resync are where their times say
-    check_in_place(last, np.ones(N, dtype=bool), first=scans.scans - N)
+    # every frame where its time says, those before the resync too: nothing shifted
+    check_in_place(scans.lines["a"], scans.valid["a"])
+    expected = np.ones(scans.scans, dtype=bool)
+    expected[N : 3 * N] = False  # the two periods the camera's ids do not count
+    np.testing.assert_array_equal(scans.valid["a"], expected)
+
+
+def test_frames_held_as_late_are_not_handed_out_before_they_are_placed() -> None:
+    asm = assembler()
+    for k in range(3):
+        asm.add("a", 1 + k, T0 + k * N / RATE, frame(k * N))
+    # from id 4 on each frame is stamped a period later than its id says (a skipped period,
+    # or late stamps: only the frames after them can tell)
+    for k in range(3, 10):
+        asm.add("a", 1 + k, T0 + (k + 1) * N / RATE, frame(k * N))
+    assert asm.reached("a") == 3 * N  # what follows waits for the resync or a frame on time
+    check_in_place(asm.take(3 * N).lines["a"], np.ones(3 * N, dtype=bool))
+    asm.add("a", 11, T0 + 10 * N / RATE, frame(10 * N))  # on time after all: late stamps
+    assert asm.reached("a") == 11 * N and asm.counts("a").resyncs == 0
+    rest = asm.take(11 * N)
+    assert rest.valid["a"].all()
+    check_in_place(rest.lines["a"], rest.valid["a"], first=3 * N)
 
 
 def test_one_late_stamp_moves_nothing_but_an_early_one_does() -> None:
