@@ -403,14 +403,19 @@ def _placing(device_s: FloatArray, host_s: FloatArray) -> ClockFit:
 def _steadied(frame: Frame, before: Frame, settings: GigeSettings, modulus: int | None) -> Frame:
     """``frame`` with the earliest device time that it or ``before`` (already steadied)
     gives it, counting free-running lines by frame id: a frame is stamped when it is sent,
-    which a busy camera or host delays, never advances; None of this for a frame id gap of
-    more than one frame (nothing to count on)."""
+    which a busy camera or host delays, never advances. None of this for a frame id gap of
+    more than one frame (nothing to count on), nor for a frame half a period or more later
+    than the count: a camera that skipped a period without counting its frame id up (Aravis's
+    fake camera does when its thread wakes a period late) exposed its lines then."""
     step = frame.frame_id - before.frame_id
     if modulus is not None:
         step %= modulus
     if step != 1:
         return frame
-    expected = before.device_time_s + settings.lines_per_frame / settings.nominal_rate_hz
+    period_s = settings.lines_per_frame / settings.nominal_rate_hz
+    expected = before.device_time_s + period_s
+    if frame.device_time_s - expected >= 0.5 * period_s:
+        return frame
     return dataclasses.replace(frame, device_time_s=min(frame.device_time_s, expected))
 
 

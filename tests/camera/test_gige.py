@@ -18,7 +18,9 @@ import pytest
 
 from catenary.domain import ScanBlock
 from catenary.errors import UserError
-from catenary_camera.stream import GigeStream, open_gige
+from catenary_camera.backend import Frame
+from catenary_camera.settings import parse_settings
+from catenary_camera.stream import GigeStream, _steadied, open_gige
 from tests.camera.canlog import can_log
 from tests.camera.fakecam import (
     ADDRESSES,
@@ -425,3 +427,18 @@ def test_a_recorded_simulated_run_processes_to_the_truth(
     good &= ~samples["vehicle_fault"]  # as tests/measurement/test_process.py
     assert np.max(np.abs(samples["stagger_mm"] - truth["stagger_mm"][scan, nearest])[good]) < 2
     assert np.max(np.abs(samples["height_mm"] - truth["height_mm"][scan, nearest])[good]) < 2
+
+
+def test_a_late_stamp_is_counted_back_but_a_skipped_period_is_not() -> None:
+    chosen = parse_settings(settings())
+    period = LINES / RATE_HZ
+    before = Frame(7, True, 100.0, 100.0, None)
+
+    def steadied(device_s: float) -> float:
+        return _steadied(
+            Frame(8, True, device_s, device_s, None), before, chosen, 65535
+        ).device_time_s
+
+    assert steadied(100.0 + 1.3 * period) == pytest.approx(100.0 + period)  # stamped late
+    assert steadied(100.0 + 2.0 * period) == 100.0 + 2.0 * period  # the camera skipped a period
+    assert steadied(100.0 + 0.9 * period) == 100.0 + 0.9 * period  # never moved later
