@@ -149,8 +149,7 @@ class _Reader(threading.Thread):
     def run(self) -> None:
         settings = self._settings
         connected, last_frame = True, time.monotonic()  # open_gige connected it
-        settling, previous = 0, None  # after a reconnection: frames to read before placing
-        pairs: list[tuple[float, float]] = []  # their (device, host) times [s]
+        learning: _Learning | None = None  # after a reconnection: its clock learnt again
         while not self.stop.is_set():
             if not connected:
                 try:
@@ -160,10 +159,10 @@ class _Reader(threading.Thread):
                     self.stop.wait(settings.reconnect_interval_s)
                     continue
                 connected, last_frame = True, time.monotonic()
-                settling, previous, pairs = PREROLL_FRAMES + 1, None, []  # + the first
                 self.reconnections += 1
                 if not settings.synchronized_clocks:  # a restarted camera's own clock
                     self.clock, self.placing = ClockTracker(), None  # may have been reset
+                learning = _Learning(settings, self.clock, self.backend.frame_id_modulus)
             try:
                 frame = self.backend.read(READ_TIMEOUT_S)
                 if frame is None and time.monotonic() - last_frame > settings.timeout_s:
@@ -177,25 +176,16 @@ class _Reader(threading.Thread):
             if frame is None:
                 continue
             last_frame = time.monotonic()
-            if not settling:
+            if learning is None:
                 self._send(self.place(frame))
                 continue
-            if settling > PREROLL_FRAMES:  # the first frame after a start: maybe off the grid
-                settling -= 1
-                continue
-            if not frame.complete:  # its stamps may be stale: not one to learn from
-                continue
-            # back: its clock is learnt again as when recording started (_preroll)
-            self.clock.add(frame.device_time_s, frame.host_time_s)
-            pairs.append((frame.device_time_s, frame.host_time_s))
-            if previous is not None and settings.trigger == "free":
-                frame = _steadied(frame, previous, settings, self.backend.frame_id_modulus)
-            previous, settling = frame, settling - 1
-            if not settling:
+            learning.add(frame)  # back: its clock is learnt again as when recording started
+            if learning.done and learning.last is not None:
                 if self.placing is None:
-                    self.placing = _placing(*np.array(pairs).T)
+                    self.placing = _placing(*learning.pairs())
                 self._send(_Link(self.camera.name, "up"))
-                self._send(self.place(frame, tracked=True))
+                self._send(self.place(learning.last, tracked=True))
+                learning = None
         self.backend.disconnect()
 
 
@@ -206,9 +196,7 @@ class GigeStream:
         self,
         settings: GigeSettings,
         backends: Mapping[str, CameraBackend],
-        first: Mapping[str, Frame],
-        clocks: Mapping[str, ClockTracker],
-        pairs: Mapping[str, tuple[FloatArray, FloatArray]],
+        learnt: Mapping[str, _Learning],
     ) -> None:
         self.settings = settings
         self.positions_from_encoder = settings.trigger == "free"
@@ -218,9 +206,10 @@ class GigeStream:
         )
         cameras = {c.name: c for c in settings.cameras}
         self._readers = {
-            name: _Reader(cameras[name], backend, settings, self._queue, clocks[name])
+            name: _Reader(cameras[name], backend, settings, self._queue, learnt[name].clock)
             for name, backend in backends.items()
         }
+        pairs = {name: learning.pairs() for name, learning in learnt.items()}
         shared = None
         if settings.synchronized_clocks:  # one mapping for all: the cameras' pairs together
             shared = _placing(
@@ -229,7 +218,11 @@ class GigeStream:
             )
         for name, reader in self._readers.items():
             reader.placing = shared or _placing(*pairs[name])
-        placed = [self._readers[n].place(frame, tracked=True) for n, frame in first.items()]
+        placed = [
+            self._readers[name].place(learning.last, tracked=True)
+            for name, learning in learnt.items()
+            if learning.last is not None
+        ]
         self.clock_zero_unix_s = max(p.time_s for p in placed if p.time_s is not None)
         modulus = {backend.frame_id_modulus for backend in backends.values()}
         self._assembler = ScanAssembler(
@@ -419,30 +412,57 @@ def _steadied(frame: Frame, before: Frame, settings: GigeSettings, modulus: int 
     return dataclasses.replace(frame, device_time_s=min(frame.device_time_s, expected))
 
 
-def _preroll(
-    settings: GigeSettings, backends: Mapping[str, CameraBackend]
-) -> tuple[dict[str, Frame], dict[str, ClockTracker], dict[str, tuple[FloatArray, FloatArray]]]:
-    """Read :data:`PREROLL_FRAMES` frames of every camera into its clock tracker (after its
-    first frame, which some cameras, Aravis's fake one among them, send off their frame
-    period's grid, and leaving out incomplete ones, whose stamps may be stale), so that the
-    host times of the frames recorded do not move as the first estimates of the clock
-    offset settle; returns each camera's last frame (the first one recorded), its tracker and
-    its (device, host) time pairs [s].
+class _Learning:
+    """A camera's clock learnt from its first frames after a start: the first one (which
+    some cameras, Aravis's fake one among them, send off their frame period's grid) and
+    incomplete ones (whose stamps may be stale) are not learnt from; the others' (device,
+    host) times go into ``clock`` (a :class:`ClockTracker`) and each one's time is the
+    earliest its predecessors allow (:func:`_steadied`). ``last`` is the last frame learnt
+    from (the first to record), ``done`` once :data:`PREROLL_FRAMES` were."""
+
+    def __init__(self, settings: GigeSettings, clock: ClockTracker, modulus: int | None) -> None:
+        self._settings = settings
+        self.clock = clock
+        self._modulus = modulus
+        self._started = False
+        self._times: list[tuple[float, float]] = []
+        self.last: Frame | None = None
+
+    @property
+    def done(self) -> bool:
+        return len(self._times) >= PREROLL_FRAMES
+
+    def add(self, frame: Frame) -> None:
+        if not (self._started and frame.complete):
+            self._started = True
+            return
+        self.clock.add(frame.device_time_s, frame.host_time_s)
+        self._times.append((frame.device_time_s, frame.host_time_s))
+        if self._settings.trigger == "free" and self.last is not None:
+            frame = _steadied(frame, self.last, self._settings, self._modulus)
+        self.last = frame
+
+    def pairs(self) -> tuple[FloatArray, FloatArray]:
+        """The (device, host) times [s] learnt from, each ``[k]``."""
+        device, host = np.array(self._times, dtype=np.float64).reshape(-1, 2).T
+        return device, host
+
+
+def _preroll(settings: GigeSettings, backends: Mapping[str, CameraBackend]) -> dict[str, _Learning]:
+    """Every camera's clock learnt from its first frames (:class:`_Learning`), read from all
+    of them in turn until each has :data:`PREROLL_FRAMES`, so that the host times of the
+    frames recorded do not move as the first estimates of the clock offset settle.
     ``UserError`` naming a camera that gives no frame in ``timeout_s``."""
     cameras = {c.name: c for c in settings.cameras}
-    trackers = {name: ClockTracker() for name in backends}
-    frames: dict[str, Frame] = {}
-    times: dict[str, list[tuple[float, float]]] = {name: [] for name in backends}
-    started: set[str] = set()
+    learnt = {
+        name: _Learning(settings, ClockTracker(), backend.frame_id_modulus)
+        for name, backend in backends.items()
+    }
     waiting_since = dict.fromkeys(backends, time.monotonic())
-    while min(len(t) for t in times.values()) < PREROLL_FRAMES:
+    while not all(learning.done for learning in learnt.values()):
         for name, backend in backends.items():
             frame = backend.read(0.01)
             now = time.monotonic()
-            if frame is not None and (not frame.complete or name not in started):
-                started.add(name)  # the first may be off the grid; an incomplete one's stamps
-                waiting_since[name] = now  # may be stale: neither is learnt from
-                continue
             if frame is None:
                 if now - waiting_since[name] > settings.timeout_s:
                     raise UserError(
@@ -450,16 +470,9 @@ def _preroll(
                         f"{settings.timeout_s:g} s (trigger {settings.trigger!r})"
                     )
                 continue
-            trackers[name].add(frame.device_time_s, frame.host_time_s)
-            times[name].append((frame.device_time_s, frame.host_time_s))
-            if settings.trigger == "free" and name in frames:  # its time by the earlier ones
-                frame = _steadied(frame, frames[name], settings, backend.frame_id_modulus)
-            frames[name], waiting_since[name] = frame, now
-    pairs = {
-        name: (np.array([d for d, _ in t]), np.array([h for _, h in t]))
-        for name, t in times.items()
-    }
-    return frames, trackers, pairs
+            learnt[name].add(frame)
+            waiting_since[name] = now
+    return learnt
 
 
 def _backend(name: str) -> Callable[[CameraSettings, GigeSettings], CameraBackend]:
@@ -492,9 +505,9 @@ def open_gige(
                 backends[camera.name].connect()
             except CameraUnavailable as exc:
                 raise UserError(f"source 'gige': {exc}") from None
-        first, clocks, pairs = _preroll(parsed, backends)
+        learnt = _preroll(parsed, backends)
     except BaseException:
         for opened in backends.values():
             opened.disconnect()
         raise
-    return GigeStream(parsed, backends, first, clocks, pairs)
+    return GigeStream(parsed, backends, learnt)
