@@ -20,8 +20,10 @@ gap. Frame ids wrap (GigE Vision's 16-bit ids run 1-65535, then 1 again: ``frame
   lines between are invalid, and lines it would repeat are dropped, never written twice. A
   frame is stamped late (a busy camera or host), never early: its time can only say it is
   later than its id does, and is believed when the last :data:`RESYNC_FRAMES` frames all say
-  so. Until then the frames that say so are held (:meth:`ScanAssembler.reached` stops before
-  the first of them): a resync moves them with it, a frame on time again confirms them.
+  so, by as much as the least of them. Until then the frames that say so are held
+  (:meth:`ScanAssembler.reached` stops before the first of them): a resync moves them with
+  it (those later still, after a second skip, wait for their own frames to tell), a frame
+  on time again confirms them.
 * Encoder-triggered lines (``quantum = N``): every camera sees the same encoder pulses, so
   their frames hold the same lines; a camera's first frame goes to the nearest multiple of
   ``N`` by time, then its ids alone carry it (the speed varies, so time cannot check it).
@@ -85,9 +87,9 @@ class _Camera:
     frames: list[tuple[int, Lines]] = field(default_factory=list)  # (first scan, lines)
     last_id: int | None = None
     next_scan: int = 0  # where the next consecutive frame starts
-    # how far [lines] the last frames' times place them after their ids (free-running)
-    late: deque[float] = field(default_factory=lambda: deque(maxlen=RESYNC_FRAMES))
-    held: int | None = None  # the first scan of the frames held as late (free-running)
+    # free-running: the frames held as late, oldest first: (first scan by id, how far [lines]
+    # its time places it after that)
+    held: deque[tuple[int, float]] = field(default_factory=deque)
     counts: CameraCounts = field(default_factory=CameraCounts)
 
 
@@ -143,12 +145,13 @@ class ScanAssembler:
         """The scan after the last line ``name`` has delivered (placed so far), or the first
         scan of its frames held as late (module docstring)."""
         camera = self._cameras[name]
-        return camera.next_scan if camera.held is None else camera.held
+        return camera.held[0][0] if camera.held else camera.next_scan
 
     def restart(self, name: str) -> None:
         """Forget ``name``'s frame ids (it reconnected): its next frame is placed by time."""
         camera = self._cameras[name]
-        camera.last_id, camera.held = None, None
+        camera.last_id = None
+        camera.held.clear()
 
     def add(self, name: str, frame_id: int, time_s: float | None, lines: Lines | None) -> None:
         """A frame of ``name``: its id, its first line's host time [s] and its lines
@@ -177,8 +180,7 @@ class ScanAssembler:
         if by_time:
             quantum = n if self.encoder else 1
             first = quantum * round(measured / quantum)
-            camera.late.clear()
-            camera.held = None
+            camera.held.clear()
         camera.last_id = frame_id
         if lines is None:
             camera.counts.incomplete_frames += 1
@@ -195,26 +197,30 @@ class ScanAssembler:
         """How far [lines] to move a free-running frame placed at scan ``first`` by its id,
         whose time places it ``lateness`` lines later; a resync moves the frames held with it
         (module docstring)."""
-        camera.late.append(lateness)
-        late = min(camera.late)  # stamps come late, never early: the least is right
-        full = len(camera.late) == RESYNC_FRAMES
-        if late < -self._resync_lines or (full and late > self._resync_lines):
-            shift = round(late)
-            if camera.held is not None and shift > 0:
-                camera.frames = [
-                    (start + shift if start >= camera.held else start, lines)
-                    for start, lines in camera.frames
-                ]
-                camera.next_scan += shift
-            camera.late.clear()
-            camera.held = None
-            camera.counts.resyncs += 1
-            return shift
-        if lateness <= self._resync_lines:
-            camera.held = None  # on time: the frames held were where their ids put them
-        elif camera.held is None:
-            camera.held = first
-        return 0
+        if lateness <= self._resync_lines:  # on time: the frames held were where ids put them
+            camera.held.clear()
+            if lateness >= -self._resync_lines:
+                return 0
+            camera.counts.resyncs += 1  # early: stamps never are, the camera is ahead
+            return round(lateness)
+        camera.held.append((first, lateness))
+        if len(camera.held) < RESYNC_FRAMES:
+            return 0
+        # stamps come late, never early, and a camera only falls further behind its ids: the
+        # oldest held frame is as late as the least of them says; those later than that by
+        # more than a few lines (it skipped again) stay held, for their own frames to tell
+        shift = round(min(late for _, late in camera.held))
+        held_from = camera.held[0][0]
+        camera.frames = [
+            (start + shift if start >= held_from else start, lines)
+            for start, lines in camera.frames
+        ]
+        camera.next_scan += shift
+        moved = [(start + shift, late - shift) for start, late in camera.held]
+        on_time = max(k for k, (_, late) in enumerate(moved) if late <= self._resync_lines)
+        camera.held = deque(moved[on_time + 1 :])
+        camera.counts.resyncs += 1
+        return shift
 
     def take(self, upto: int) -> AssembledScans:
         """Hand out scans ``next_scan .. upto - 1`` (none if ``upto <= next_scan``)."""

@@ -89,6 +89,21 @@ def test_frames_whose_times_all_disagree_with_their_ids_are_placed_by_time() -> 
     np.testing.assert_array_equal(scans.valid["a"], expected)
 
 
+def test_a_second_skip_before_the_first_is_confirmed_is_placed_by_its_own_times() -> None:
+    asm = assembler()
+    # the camera skips a period after its 3rd frame and two more after its 10th, its ids
+    # counting on (Aravis's fake camera): both within RESYNC_FRAMES frames, stamps exact
+    for k in range(3 * RESYNC_FRAMES):
+        scan = (k + (0 if k < 3 else 1 if k < 10 else 3)) * N
+        asm.add("a", 1 + k, T0 + scan / RATE, frame(scan))
+    scans = asm.take(asm.reached("a"))
+    check_in_place(scans.lines["a"], scans.valid["a"])
+    expected = np.ones((3 * RESYNC_FRAMES + 3) * N, dtype=bool)
+    expected[3 * N : 4 * N] = expected[11 * N : 13 * N] = False
+    np.testing.assert_array_equal(scans.valid["a"], expected)
+    assert asm.counts("a").resyncs == 2
+
+
 def test_frames_held_as_late_are_not_handed_out_before_they_are_placed() -> None:
     asm = assembler()
     for k in range(3):
