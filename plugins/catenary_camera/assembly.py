@@ -15,8 +15,8 @@ gap. Frame ids wrap (GigE Vision's 16-bit ids run 1-65535, then 1 again: ``frame
 * Free-running lines (``quantum = 1``): the scan of a frame's first line is its time since
   the run's start times the line rate, rounded. When the ids place a camera's frames more
   than ``resync_lines`` away from where their times do, the camera is placed by time again
-  (``resyncs``: its line clock drifted from the nominal rate, or it skipped a frame period
-  without skipping a frame id, as Aravis's fake camera does when it wakes a period late): the
+  (``resyncs``: its line clock drifted from the nominal rate, or it skipped frame periods
+  without skipping a frame id, as Aravis's fake camera does when it oversleeps): the
   lines between are invalid, and lines it would repeat are dropped, never written twice. A
   frame is stamped late (a busy camera or host), never early: its time can only say it is
   later than its id does, and is believed when the last :data:`RESYNC_FRAMES` frames all say

@@ -399,7 +399,7 @@ def _steadied(frame: Frame, before: Frame, settings: GigeSettings, modulus: int 
     which a busy camera or host delays, never advances. None of this for a frame id gap of
     more than one frame (nothing to count on), nor for a frame half a period or more later
     than the count: a camera that skipped a period without counting its frame id up (Aravis's
-    fake camera does when its thread wakes a period late) exposed its lines then."""
+    fake camera does when its thread oversleeps) exposed its lines then."""
     step = frame.frame_id - before.frame_id
     if modulus is not None:
         step %= modulus
