@@ -159,28 +159,28 @@ class ScanAssembler:
         leader leaves a buffer's stamp stale): it is placed by its id alone, if at all."""
         camera = self._cameras[name]
         n = self.lines_per_frame
-        if time_s is None and camera.last_id is None:
+        step = 0 if camera.last_id is None else frame_id - camera.last_id
+        if self._modulus is not None:
+            step %= self._modulus
+        if camera.last_id is not None and step == 0:  # a repeated id: nothing new
+            return
+        # no id before, or ids gone back (half the id range back, when they wrap): a restarted
+        # camera, or an incomplete frame's stale id
+        by_time = camera.last_id is None or step < 0
+        by_time |= self._modulus is not None and step > self._modulus // 2
+        if by_time and time_s is None:
             return  # nothing to place it by: its scans stay invalid for this camera
         # the scan of its first line, by time
         measured = math.nan if time_s is None else (time_s - self.start_s) * self.rate_hz
-        by_time = camera.last_id is None
-        if camera.last_id is not None:
-            step = frame_id - camera.last_id
-            if self._modulus is not None:
-                step %= self._modulus
-            if step == 0:  # a repeated id: nothing new
-                return
-            # ids gone back (half the id range back, when they wrap): a restarted camera
-            by_time = step < 0 or (self._modulus is not None and step > self._modulus // 2)
-            first = camera.next_scan + (step - 1) * n
-            if not by_time:
-                camera.counts.missing_frames += step - 1
-            if not by_time and not self.encoder and time_s is not None:
-                first += self._check_time(camera, measured - first, first)
         if by_time:
             quantum = n if self.encoder else 1
             first = quantum * round(measured / quantum)
             camera.held.clear()
+        else:
+            first = camera.next_scan + (step - 1) * n
+            camera.counts.missing_frames += step - 1
+            if not self.encoder and time_s is not None:
+                first += self._check_time(camera, measured - first, first)
         camera.last_id = frame_id
         if lines is None:
             camera.counts.incomplete_frames += 1

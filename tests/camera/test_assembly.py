@@ -151,6 +151,17 @@ def test_repeated_frame_ids_add_nothing() -> None:
     check_in_place(scans.lines["a"], scans.valid["a"])
 
 
+def test_an_incomplete_frame_whose_id_goes_back_is_left_out() -> None:
+    asm = assembler()
+    for k in range(3):
+        asm.add("a", 100 + k, T0 + k * N / RATE, frame(k * N))
+    asm.add("a", 7, None, None)  # a lost leader: a stale id, no time to place it by
+    asm.add("a", 103, T0 + 3 * N / RATE, frame(3 * N))
+    scans = asm.take(4 * N)
+    assert scans.valid["a"].all() and asm.counts("a").resyncs == 0
+    check_in_place(scans.lines["a"], scans.valid["a"])
+
+
 def test_a_reconnected_camera_is_placed_by_time_again() -> None:
     asm = assembler()
     asm.add("a", 40, T0, frame(0))
