@@ -59,10 +59,6 @@ def _library() -> ctypes.CDLL:
 
 
 _LIB = _library()
-_GOBJECT = ctypes.CDLL("libgobject-2.0.so.0")
-for _name in ("g_object_ref", "g_object_unref"):
-    getattr(_GOBJECT, _name).argtypes = [ctypes.c_void_p]
-    getattr(_GOBJECT, _name).restype = None
 _GET_POINTER = ctypes.pythonapi.PyCapsule_GetPointer
 _GET_POINTER.restype = ctypes.c_void_p
 _GET_POINTER.argtypes = [ctypes.py_object, ctypes.c_char_p]
@@ -140,20 +136,16 @@ class FakeCamera:
         _LIB.arv_fake_camera_set_fill_pattern(self._pointer, self._callback, None)
 
     def close(self) -> None:
-        """Stop the camera: its thread and sockets go with the object, finalised here without
-        Python's lock (the last reference dropped through ctypes). The other fake cameras
-        fill their frames in Python: holding the lock (Aravis joining this camera's thread,
-        then a full garbage collection, 0.2-0.8 s on a busy machine) stalled them up to
-        0.94 s; a fake camera held past its next frame periods skips them without counting
-        its frame id on, so the lines ``fill`` counts on sat 1-2 frames before the stamps
-        that the recorder places them by."""
+        """Stop the camera (its thread and sockets go with the object). No full garbage
+        collection: the other fake cameras fill their frames in Python, and one (0.2-0.8 s
+        on a busy machine, Python's lock held) stalled them up to 0.94 s; a fake camera held
+        past its next frame periods skips them without counting its frame id on, so the
+        lines ``fill`` counts on sat 1-2 frames before the stamps the recorder places them
+        by. Dropping the object joins the camera's thread (its polls last 0.1 s at most)."""
         _LIB.arv_fake_camera_write_register(self._pointer, ACQUISITION_REGISTER, 0)
         time.sleep(0.5)  # the frame under way is sent; then the camera streams no more
         self.fill(None)  # no Python callback may run while the camera is finalised
-        camera = _GET_POINTER(self.camera.__gpointer__, None)
-        _GOBJECT.g_object_ref(camera)  # the wrappers' references go, ours is the last
         self.camera = self._fake = None
-        _GOBJECT.g_object_unref(camera)
 
 
 @functools.cache
