@@ -686,8 +686,8 @@ def _put_evidence(
 ) -> int:
     """Pass 3: the image evidence at each of ``points`` (by ``POINTS``), put in the store
     (``catenary.measurement.evidence``), cut ``EVIDENCE_CUT`` points at a time in
-    ``workers`` worker processes unless 1 (the store written here meanwhile); returns how
-    many crops."""
+    ``workers`` worker processes (no more than the cuts) unless 1 (the store written here
+    meanwhile); returns how many crops."""
     header = run_file.header
     cuts: list[Cut] = []
     wheres: list[str] = []
@@ -709,10 +709,10 @@ def _put_evidence(
             wheres.append(where)
     with ExitStack() as stack:
         pngs: Iterator[list[bytes]]
-        if workers == 1:
+        if min(workers, len(cuts)) <= 1:  # no pool started for what one process does
             pngs = (cut_pngs(run_file, cut) for cut in cuts)
         else:
-            pool = with_run(run_file.path, cut_pngs, cuts, workers)
+            pool = with_run(run_file.path, cut_pngs, cuts, min(workers, len(cuts)))
             pngs = (done.result() for _, done in stack.enter_context(closing(pool)))
         count = 0
         for where, cut, cut_so in zip(wheres, cuts, pngs, strict=True):
