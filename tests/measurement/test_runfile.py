@@ -367,6 +367,21 @@ def test_unknown_groups_and_attributes_are_ignored(run_path: Path, no_warnings: 
     np.testing.assert_array_equal(block.position_m, expected.position_m)
 
 
+@pytest.mark.parametrize("compression", [None, "gzip"])
+def test_image_blocks_read_the_lines_anywhere(run_path: Path, compression: str | None) -> None:
+    # unfiltered lines are read at their chunks' offsets (a few rows), compressed ones by
+    # HDF5: the same rows either way, within a chunk of 16, across chunks, at the end
+    expected = write_run(run_path, [30, 30, 11], compression=compression)
+    with open_run(run_path) as run:
+        for first, last in [(0, 5), (3, 16), (14, 18), (5, 71), (64, 71), (40, 40)]:
+            block = run.image_block(first, last)
+            np.testing.assert_array_equal(block.position_m, expected.position_m[first:last])
+            for name in CAMERAS:
+                lines = block.cameras[name].lines
+                assert lines.dtype == expected.lines[name].dtype
+                np.testing.assert_array_equal(lines, expected.lines[name][first:last])
+
+
 # -- vehicle sensors -------------------------------------------------------------------------
 
 

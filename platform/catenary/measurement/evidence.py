@@ -20,6 +20,7 @@ import io
 import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from PIL import Image
@@ -27,16 +28,22 @@ from PIL import Image
 from catenary.arrays import FloatArray
 from catenary.domain import ScanBlock
 
+if TYPE_CHECKING:
+    from catenary.measurement.runfile import RunFile
+
 __all__ = [
     "EVIDENCE_PREFIX",
     "POINTS",
+    "Cut",
     "EvidencePoint",
     "SpanMinima",
     "crop_image",
     "cut_evidence",
+    "cut_pngs",
     "evidence_key",
     "evidence_prefix",
     "png_bytes",
+    "point_columns",
 ]
 
 EVIDENCE_PREFIX = "evidence"
@@ -184,30 +191,54 @@ def png_bytes(image: np.ndarray) -> bytes:
     return out.getvalue()
 
 
+def point_columns(points: Sequence[EvidencePoint], locate: Locator) -> list[Mapping[str, float]]:
+    """Each point's sensor pixel in each camera (``locate`` called once for them all)."""
+    if not points:
+        return []
+    found = locate(np.array([p.x_roof_mm for p in points]), np.array([p.z_roof_mm for p in points]))
+    return [{name: float(found[name][k]) for name in found} for k in range(len(points))]
+
+
 def cut_evidence(
     blocks: Callable[[int, int], ScanBlock],
     scans: int,
     metres_per_scan: float,
     points: Sequence[EvidencePoint],
-    locate: Locator | None,
+    columns: Sequence[Mapping[str, float]] | None,
     cameras: Sequence[str],
 ) -> Iterator[tuple[EvidencePoint, np.ndarray]]:
-    """Each point's crop (``crop_image``): ``blocks(start, stop)`` reads scans
-    ``start:stop`` of the run (``scans`` of them, about ``metres_per_scan`` apart)."""
+    """Each point's crop (``crop_image``, at its ``columns``: ``point_columns``; None: whole
+    lines): ``blocks(start, stop)`` reads scans ``start:stop`` of the run (``scans`` of them,
+    about ``metres_per_scan`` apart)."""
     if not points:
         return
     spacing = metres_per_scan if metres_per_scan > 0 else HALF_LENGTH_M
     reach = min(MAX_HALF_SCANS, math.ceil(1.5 * HALF_LENGTH_M / spacing) + 1)
-    columns: list[Mapping[str, float] | None] = [None] * len(points)
-    if locate is not None:
-        found = locate(
-            np.array([p.x_roof_mm for p in points]), np.array([p.z_roof_mm for p in points])
-        )
-        columns = [{name: float(found[name][k]) for name in found} for k in range(len(points))]
-    for point, column in zip(points, columns, strict=True):
+    located: Sequence[Mapping[str, float] | None] = columns or [None] * len(points)
+    for point, column in zip(points, located, strict=True):
         start, stop = max(point.scan - reach, 0), min(point.scan + reach + 1, scans)
         block = blocks(start, stop)
         at = block.position_m[point.scan - start]
         near = np.flatnonzero(np.abs(block.position_m - at) <= HALF_LENGTH_M)
         rows = slice(int(near[0]), int(near[-1]) + 1)
         yield point, crop_image(block, rows, column, cameras)
+
+
+@dataclass(frozen=True)
+class Cut:
+    """Crops to cut from a run file: ``cut_evidence``'s arguments but its blocks (picklable,
+    for a worker process that has the run file open)."""
+
+    scans: int
+    metres_per_scan: float
+    points: Sequence[EvidencePoint]
+    columns: Sequence[Mapping[str, float]] | None
+    cameras: Sequence[str]
+
+
+def cut_pngs(run: RunFile, cut: Cut) -> list[bytes]:
+    """The PNG (``png_bytes``) of each of ``cut``'s crops from ``run``, in its points' order."""
+    crops = cut_evidence(
+        run.image_block, cut.scans, cut.metres_per_scan, cut.points, cut.columns, cut.cameras
+    )
+    return [png_bytes(image) for _, image in crops]

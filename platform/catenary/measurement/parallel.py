@@ -9,7 +9,9 @@ reads those small series, keeps at most ``IN_FLIGHT_PER_WORKER`` blocks per work
 flight (memory stays flat whatever the run's length) and takes the staged blocks in run
 order. Workers are forked by a fork server that has imported this module and the stage's
 (``forkserver``, preloaded): nothing of the main process (its open HDF5 file, its threads) is
-inherited, and the imports are paid once, not per worker.
+inherited, and the imports are paid once, not per worker. Other work that needs the run file
+alone runs the same way (``with_run``: the image evidence's crops, cut and encoded in the
+workers, only the PNGs coming back).
 
 The workers end with the main process, however it ends (SIGKILL included): each holds the
 reading end of a pipe whose only writing end is the main process's, and a thread of the
@@ -30,18 +32,22 @@ from collections import deque
 from collections.abc import Callable, Generator, Iterable
 from concurrent.futures import Future, ProcessPoolExecutor
 from dataclasses import replace
+from functools import partial
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from catenary.domain import ScanBlock
 from catenary.measurement.runfile import RunFile, RunFileWarning, open_run
 
-__all__ = ["IN_FLIGHT_PER_WORKER", "default_workers", "staged_blocks"]
+__all__ = ["IN_FLIGHT_PER_WORKER", "default_workers", "staged_blocks", "with_run"]
+
+T = TypeVar("T")
+R = TypeVar("R")
 
 IN_FLIGHT_PER_WORKER = 2
-"""Blocks submitted and not yet taken, per worker: enough to keep every worker busy while
-the main process takes a block."""
+"""Blocks (or other items) submitted and not yet taken, per worker: enough to keep every
+worker busy while the main process takes a block."""
 
 
 def default_workers() -> int:
@@ -52,12 +58,14 @@ def default_workers() -> int:
         return os.cpu_count() or 1
 
 
-_worker: tuple[Callable[[ScanBlock], Any], RunFile] | None = None
+_worker: tuple[Callable[[ScanBlock], Any] | None, RunFile] | None = None
 
 
-def _start_worker(stage: Callable[[ScanBlock], Any], run_path: Path, lifeline: Connection) -> None:
-    """A worker's start: the stage, the run file open for its camera lines, and a thread
-    ending the worker when the main process's end of ``lifeline`` closes."""
+def _start_worker(
+    stage: Callable[[ScanBlock], Any] | None, run_path: Path, lifeline: Connection
+) -> None:
+    """A worker's start: the stage (if any), the run file open, and a thread ending the
+    worker when the main process's end of ``lifeline`` closes."""
     global _worker
     # the main process takes Ctrl-C and ends the pool; the run's warnings it has given
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -77,8 +85,15 @@ def _stage_block(block: ScanBlock) -> Any:
     """In a worker: the stage of ``block`` (without camera lines), its lines read here."""
     assert _worker is not None
     stage, run = _worker
+    assert stage is not None
     lines = run.camera_lines(block.first_scan, block.first_scan + block.scans)
     return stage(replace(block, cameras=lines))
+
+
+def _with_run(call: Callable[[RunFile, Any], Any], item: Any) -> Any:
+    """In a worker: ``call(run, item)`` with the worker's run file."""
+    assert _worker is not None
+    return call(_worker[1], item)
 
 
 def staged_blocks(
@@ -91,8 +106,35 @@ def staged_blocks(
     workers), in order, with the future of its ``stage`` in a pool of ``workers`` processes.
     Closing the iterator (``contextlib.closing``) cancels the blocks not started and ends
     the pool; the workers end with this process, however it ends (module docstring)."""
+    return _in_order(run_path, stage, _stage_block, type(stage).__module__, blocks, workers)
+
+
+def with_run(
+    run_path: Path,
+    call: Callable[[RunFile, T], R],
+    items: Iterable[T],
+    workers: int,
+) -> Generator[tuple[T, Future[R]], None, None]:
+    """Each of ``items``, in order, with the future of ``call(run, item)`` (``call``: a
+    module's function; ``run``: the run file ``run_path`` open) in a pool of ``workers``
+    processes; closing the iterator ends the pool, as for ``staged_blocks``."""
+    return _in_order(run_path, None, partial(_with_run, call), call.__module__, items, workers)
+
+
+def _in_order(
+    run_path: Path,
+    stage: Callable[[ScanBlock], Any] | None,
+    task: Callable[[T], R],
+    module: str,
+    items: Iterable[T],
+    workers: int,
+) -> Generator[tuple[T, Future[R]], None, None]:
+    """Each of ``items``, in order, with the future of ``task(item)`` in a pool of
+    ``workers`` processes started with ``stage`` and the run file (``_start_worker``), at
+    most ``IN_FLIGHT_PER_WORKER`` per worker submitted and not yet taken; ``module``, that
+    of the work, is imported by the fork server (if it starts here) for every worker."""
     context = multiprocessing.get_context("forkserver")
-    context.set_forkserver_preload([__name__, type(stage).__module__])
+    context.set_forkserver_preload([__name__, module])
     lifeline, held = context.Pipe(duplex=False)  # ``held``: the only writing end, kept here
     pool = ProcessPoolExecutor(
         workers,
@@ -101,9 +143,9 @@ def staged_blocks(
         initargs=(stage, run_path, lifeline),
     )
     try:
-        pending: deque[tuple[ScanBlock, Future[Any]]] = deque()
-        for block in blocks:
-            pending.append((block, pool.submit(_stage_block, block)))
+        pending: deque[tuple[T, Future[R]]] = deque()
+        for item in items:
+            pending.append((item, pool.submit(task, item)))
             if len(pending) >= IN_FLIGHT_PER_WORKER * workers:
                 yield pending.popleft()
         while pending:

@@ -83,7 +83,6 @@ from sqlalchemy import Engine, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from catenary.arrays import FloatArray
 from catenary.config import Settings, did_you_mean
 from catenary.domain import (
     CODE_LENGTH,
@@ -102,15 +101,16 @@ from catenary.measurement.envelope import envelope_bytes
 from catenary.measurement.evidence import (
     HALF_LENGTH_M,
     POINTS,
+    Cut,
     EvidencePoint,
     SpanMinima,
-    cut_evidence,
+    cut_pngs,
     evidence_key,
     evidence_prefix,
-    png_bytes,
+    point_columns,
 )
 from catenary.measurement.masts import read_register
-from catenary.measurement.parallel import staged_blocks
+from catenary.measurement.parallel import staged_blocks, with_run
 from catenary.measurement.runfile import RunFile, open_run
 from catenary.measurement.samples import SampleWriter, read_sample_batches, trusted
 from catenary.measurement.sensors import DEFAULT_FILTER_HZ, SensorSmoother
@@ -160,6 +160,8 @@ DEFAULT_PROCESSOR = "linescan-stereo"
 PACKAGE_VERSION = importlib.metadata.version("catenary")
 """The version recorded with each processing (``Processing.package_version``)."""
 BLOCK_SCANS = 1024
+EVIDENCE_CUT = 16
+"""Image evidence points cut at a time (a worker's task with ``--workers`` above 1)."""
 SAMPLES_DIR = "samples"
 LEGACY_SCRATCH_AGE_S = 86400.0
 """Age [s] past which a hidden file that names no process is taken as abandoned."""
@@ -349,13 +351,16 @@ class _Inputs:
 
 
 def file_sha256(path: Path, stop: threading.Event | None = None) -> str:
-    """SHA-256 of a file's content, read in 8 MiB pieces ("" once ``stop`` is set)."""
+    """SHA-256 of a file's content ("" once ``stop`` is set), read in 1 MiB pieces into one
+    buffer: a fresh piece each time (``read``) would cost more than the hashing, in page
+    faults of the new memory."""
     digest = hashlib.sha256()
-    with path.open("rb") as handle:
-        while piece := handle.read(8 << 20):
+    piece = memoryview(bytearray(1 << 20))
+    with path.open("rb", buffering=0) as handle:
+        while size := handle.readinto(piece):
             if stop is not None and stop.is_set():
                 return ""
-            digest.update(piece)
+            digest.update(piece[:size])
     return digest.hexdigest()
 
 
@@ -677,31 +682,44 @@ def _put_evidence(
     last_position_m: float,
     store: Store,
     processing_uuid: str,
+    workers: int,
 ) -> int:
     """Pass 3: the image evidence at each of ``points`` (by ``POINTS``), put in the store
-    (``catenary.measurement.evidence``); returns how many crops."""
-
-    def locate(x_mm: FloatArray, z_mm: FloatArray) -> Mapping[str, FloatArray]:
-        assert isinstance(processor, ImageLocator)
-        with boundary():
-            return processor.image_columns(x_mm, z_mm)
-
+    (``catenary.measurement.evidence``), cut ``EVIDENCE_CUT`` points at a time in
+    ``workers`` worker processes (no more than the cuts) unless 1 (the store written here
+    meanwhile); returns how many crops."""
     header = run_file.header
-    count = 0
+    cuts: list[Cut] = []
+    wheres: list[str] = []
     for where, chosen in points.items():
-        crops = cut_evidence(
-            run_file.image_block,
-            header.scans,
-            abs(last_position_m) / max(header.scans - 1, 1),
-            chosen,
-            locate if isinstance(processor, ImageLocator) else None,
-            sorted(header.camera_pixels),
-        )
-        for point, image in crops:
-            span = int(layout.number[point.span])
-            key = evidence_key(processing_uuid, span, point.wire, where)
-            store.put_bytes(png_bytes(image), key)
-            count += 1
+        columns = None
+        if isinstance(processor, ImageLocator):
+            with boundary():
+                columns = point_columns(chosen, processor.image_columns)
+        for first in range(0, len(chosen), EVIDENCE_CUT):
+            cuts.append(
+                Cut(
+                    header.scans,
+                    abs(last_position_m) / max(header.scans - 1, 1),
+                    chosen[first : first + EVIDENCE_CUT],
+                    None if columns is None else columns[first : first + EVIDENCE_CUT],
+                    sorted(header.camera_pixels),
+                )
+            )
+            wheres.append(where)
+    with ExitStack() as stack:
+        pngs: Iterator[list[bytes]]
+        if min(workers, len(cuts)) <= 1:  # no pool started for what one process does
+            pngs = (cut_pngs(run_file, cut) for cut in cuts)
+        else:
+            pool = with_run(run_file.path, cut_pngs, cuts, min(workers, len(cuts)))
+            pngs = (done.result() for _, done in stack.enter_context(closing(pool)))
+        count = 0
+        for where, cut, cut_so in zip(wheres, cuts, pngs, strict=True):
+            for point, png in zip(cut.points, cut_so, strict=True):
+                span = int(layout.number[point.span])
+                store.put_bytes(png, evidence_key(processing_uuid, span, point.wire, where))
+                count += 1
     return count
 
 
@@ -1064,6 +1082,7 @@ def _process_open_run(
                 last_position,
                 store,
                 str(made),
+                workers,
             )
             levels = envelope_bytes(unstored)
             header = inputs.header
