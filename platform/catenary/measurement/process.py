@@ -689,6 +689,8 @@ def _put_evidence(
     ``workers`` worker processes (no more than the cuts) unless 1 (the store written here
     meanwhile); returns how many crops."""
     header = run_file.header
+    metres_per_scan = abs(last_position_m) / max(header.scans - 1, 1)
+    cameras = sorted(header.camera_pixels)
     cuts: list[Cut] = []
     wheres: list[str] = []
     for where, chosen in points.items():
@@ -700,10 +702,10 @@ def _put_evidence(
             cuts.append(
                 Cut(
                     header.scans,
-                    abs(last_position_m) / max(header.scans - 1, 1),
+                    metres_per_scan,
                     chosen[first : first + EVIDENCE_CUT],
                     None if columns is None else columns[first : first + EVIDENCE_CUT],
-                    sorted(header.camera_pixels),
+                    cameras,
                 )
             )
             wheres.append(where)
@@ -715,8 +717,8 @@ def _put_evidence(
             pool = with_run(run_file.path, cut_pngs, cuts, min(workers, len(cuts)))
             pngs = (done.result() for _, done in stack.enter_context(closing(pool)))
         count = 0
-        for where, cut, cut_so in zip(wheres, cuts, pngs, strict=True):
-            for point, png in zip(cut.points, cut_so, strict=True):
+        for where, cut, cut_pngs_of in zip(wheres, cuts, pngs, strict=True):
+            for point, png in zip(cut.points, cut_pngs_of, strict=True):
                 span = int(layout.number[point.span])
                 store.put_bytes(png, evidence_key(processing_uuid, span, point.wire, where))
                 count += 1
