@@ -29,18 +29,26 @@ import signal
 import threading
 import warnings
 from collections import deque
-from collections.abc import Callable, Generator, Iterable
+from collections.abc import Callable, Generator, Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import replace
 from functools import partial
 from multiprocessing.connection import Connection
 from pathlib import Path
+from types import FrameType
 from typing import Any, TypeVar
 
 from catenary.domain import ScanBlock
 from catenary.measurement.runfile import RunFile, RunFileWarning, open_run
 
-__all__ = ["IN_FLIGHT_PER_WORKER", "default_workers", "staged_blocks", "with_run"]
+__all__ = [
+    "IN_FLIGHT_PER_WORKER",
+    "default_workers",
+    "interruptions_held",
+    "staged_blocks",
+    "with_run",
+]
 
 T = TypeVar("T")
 R = TypeVar("R")
@@ -57,6 +65,31 @@ def default_workers() -> int:
     except AttributeError:  # not on Linux
         return os.cpu_count() or 1
 
+
+@contextmanager
+def interruptions_held() -> Iterator[None]:
+    """SIGINT and SIGTERM received during the block are raised again when it ends, for the
+    handlers that were there. (Python runs signal handlers in the main thread only: in another
+    thread there is nothing to hold.)"""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+
+    def hold(signum: int, frame: FrameType | None) -> None:
+        received.append(signum)
+
+    previous = {number: signal.signal(number, hold) for number in _INTERRUPTIONS}
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+        for signum in dict.fromkeys(received):
+            signal.raise_signal(signum)
+
+
+_INTERRUPTIONS = (signal.SIGINT, signal.SIGTERM)
 
 _worker: tuple[Callable[[ScanBlock], Any] | None, RunFile] | None = None
 
@@ -145,7 +178,12 @@ def _in_order(
     try:
         pending: deque[tuple[T, Future[R]]] = deque()
         for item in items:
-            pending.append((item, pool.submit(task, item)))
+            # a worker that ``submit`` starts is then known to the pool, which ends it: one
+            # interrupted while the fork server forks it would outlive this process's
+            # semaphores and fail to start, printing a traceback to the command's output
+            with interruptions_held():
+                future = pool.submit(task, item)
+            pending.append((item, future))
             if len(pending) >= IN_FLIGHT_PER_WORKER * workers:
                 yield pending.popleft()
         while pending:

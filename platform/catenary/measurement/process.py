@@ -62,19 +62,17 @@ import hashlib
 import importlib.metadata
 import math
 import os
-import signal
 import socket
 import threading
 import time
 import uuid
 from collections.abc import Callable, Iterator, Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
-from contextlib import AbstractContextManager, ExitStack, closing, contextmanager, suppress
+from contextlib import AbstractContextManager, ExitStack, closing, suppress
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from functools import partial
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import numpy as np
@@ -110,7 +108,7 @@ from catenary.measurement.evidence import (
     point_columns,
 )
 from catenary.measurement.masts import read_register
-from catenary.measurement.parallel import staged_blocks, with_run
+from catenary.measurement.parallel import interruptions_held, staged_blocks, with_run
 from catenary.measurement.runfile import RunFile, open_run
 from catenary.measurement.samples import SampleWriter, read_sample_batches, trusted
 from catenary.measurement.sensors import DEFAULT_FILTER_HZ, SensorSmoother
@@ -885,32 +883,6 @@ def _started_at(header: RunHeader) -> datetime:
     return moment if moment.tzinfo is not None else moment.replace(tzinfo=UTC)
 
 
-@contextmanager
-def _interruptions_held() -> Iterator[None]:
-    """SIGINT and SIGTERM received during the block are raised again when it ends, for the
-    handlers that were there. (Python runs signal handlers in the main thread only: in another
-    thread there is nothing to hold.)"""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    received: list[int] = []
-
-    def hold(signum: int, frame: FrameType | None) -> None:
-        received.append(signum)
-
-    previous = {number: signal.signal(number, hold) for number in _INTERRUPTIONS}
-    try:
-        yield
-    finally:
-        for number, handler in previous.items():
-            signal.signal(number, handler)
-        for signum in dict.fromkeys(received):
-            signal.raise_signal(signum)
-
-
-_INTERRUPTIONS = (signal.SIGINT, signal.SIGTERM)
-
-
 class StoredThenInterrupted(KeyboardInterrupt):
     """Ctrl-C or SIGTERM (``interruption``) arrived while the run was stored: it is stored
     as ``run_id``, and nothing after the commit was done."""
@@ -1089,7 +1061,7 @@ def _process_open_run(
             levels = envelope_bytes(unstored)
             header = inputs.header
             try:
-                with _interruptions_held():
+                with interruptions_held():
                     with session_scope(engine) as session:
                         # the check that counts is in the transaction that stores: on SQLite it
                         # holds the write lock, so a concurrent process of the same run waits
