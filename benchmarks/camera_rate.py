@@ -15,10 +15,17 @@ recorder's CPU time per scan and per camera line, the cameras' CPU time, the fil
 The target (issue 20): no line lost. Lost lines are told apart by who lost them, from each
 fake camera's own log of the frames it sent (``-d stream-thread:2``: a line per frame with
 the host's time to the millisecond): lines of frame periods in which the camera sent
-nothing ("not sent": Aravis 0.8's fake camera waits 100 ms whenever its next frame's time
-passes while it computes its wait, an unsigned underflow in ``arvgvfakecamera.c``), and
-lines the recorder dropped (frames missing or incomplete, lines too late); what neither
-explains is printed as "unexplained".
+nothing ("not sent"), and lines the recorder dropped (frames missing or incomplete, lines
+too late); what neither explains is printed as "unexplained".
+
+Aravis 0.8's fake camera oversleeps: whenever its next frame's time passes while it computes
+its wait (an unsigned underflow in ``arvgvfakecamera.c``), it waits 100 ms, or until a
+control packet arrives, and the frame periods meanwhile are never sent. The benchmark
+therefore sends each fake camera a GVCP register read every ``--wake-ms`` (2 ms; from a
+socket of its own, which the recorder never sees), which ends such a wait within 2 ms, well
+inside a frame period (20 ms); ``--wake-ms 0`` shows the fake cameras as they are. Their
+logs are written to memory (``/dev/shm``): a camera whose log line waited for the disk the
+run file goes to would miss its frame's time too.
 
     .venv/bin/python benchmarks/camera_rate.py                  # 20 s at 5,300 lines/s
     .venv/bin/python benchmarks/camera_rate.py --seconds 60 --rate-hz 8000 --width 2048
@@ -29,13 +36,18 @@ Needs the ``camera`` extra and the loopback addresses (``.ci/run`` adds them).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import re
+import shutil
 import signal
+import socket
+import struct
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Iterator
 from datetime import datetime
@@ -115,6 +127,26 @@ def start_cameras(genicam: Path, logs: list[Path]) -> list[subprocess.Popen[byte
     return cameras
 
 
+GVCP_PORT = 3956
+# GVCP READREG_CMD (0x42, flags 0, command 0x0080, 4 bytes, request id) of register 0
+READ_VERSION = struct.pack(">BBHHHI", 0x42, 0, 0x0080, 4, 1, 0)
+
+
+def wake_cameras(interval_s: float, stop: threading.Event) -> None:
+    """Until ``stop``: every ``interval_s``, a GVCP register read to each fake camera (from a
+    socket of its own: not the recorder's control channel), which ends any wait of its
+    streaming thread (see ``--wake-ms``); the replies are read and thrown away."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+        udp.bind(("127.0.0.1", 0))
+        udp.setblocking(False)
+        while not stop.wait(interval_s):
+            for address in ADDRESSES:
+                udp.sendto(READ_VERSION, (address, GVCP_PORT))
+            with contextlib.suppress(BlockingIOError):
+                while True:
+                    udp.recv(64)
+
+
 SENT = re.compile(rb"^\[(\d\d):(\d\d):(\d\d\.\d+)\].*Send frame \d+$", re.MULTILINE)
 
 
@@ -147,7 +179,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--width", type=int, default=4096, help="pixels per line")
     parser.add_argument("--lines-per-frame", type=int, default=106, help="lines per frame (Height)")
     parser.add_argument("--packet-size", type=int, default=8192, help="GVSP packet size [B]")
-    parser.add_argument("--keep", type=Path, help="keep the run file and cameras' logs here")
+    parser.add_argument(
+        "--wake-ms",
+        type=float,
+        default=2.0,
+        help="a register read to each fake camera this often [ms], which ends its oversleep "
+        "(module docstring); 0: none",
+    )
+    parser.add_argument(
+        "--keep", type=Path, help="keep the run file and the cameras' logs in this folder"
+    )
     parser.add_argument("--child", help=argparse.SUPPRESS)
     parser.add_argument("--out", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -170,13 +211,23 @@ def main(argv: list[str] | None = None) -> int:
         "buffers": 64,
         "synchronized_clocks": True,  # the fake cameras stamp frames with the host's clock
     }
-    with tempfile.TemporaryDirectory(prefix="camera-rate-") as scratch:
+    # the cameras' logs in memory (/dev/shm): a line written per frame must not wait for the
+    # disk that the run file is being written to
+    in_memory = Path("/dev/shm") if Path("/dev/shm").is_dir() else None
+    with (
+        tempfile.TemporaryDirectory(prefix="camera-rate-") as scratch,
+        tempfile.TemporaryDirectory(prefix="camera-rate-logs-", dir=in_memory) as log_dir,
+    ):
         tmp = args.keep or Path(scratch)
         tmp.mkdir(parents=True, exist_ok=True)
         genicam = wide_genicam(tmp / "fake-wide.xml")
         out = tmp / "run.h5"
-        logs = [tmp / f"{name}.log" for name in names]
+        logs = [Path(log_dir) / f"{name}.log" for name in names]
         cameras = start_cameras(genicam, logs)
+        stop_waking = threading.Event()
+        if args.wake_ms > 0:
+            waking = threading.Thread(target=wake_cameras, args=(args.wake_ms / 1e3, stop_waking))
+            waking.start()
         try:
             time.sleep(1.0)  # the cameras bind their sockets
             cameras_cpu = [cpu_s(p.pid) for p in cameras]
@@ -195,6 +246,7 @@ def main(argv: list[str] | None = None) -> int:
             wall_s = time.monotonic() - started
             cameras_cpu = [cpu_s(p.pid) - c for p, c in zip(cameras, cameras_cpu, strict=True)]
         finally:
+            stop_waking.set()
             for camera in cameras:
                 camera.send_signal(signal.SIGINT)
             for camera in cameras:
@@ -205,11 +257,20 @@ def main(argv: list[str] | None = None) -> int:
         result = json.loads(report)
         size_mb = out.stat().st_size / 1e6
         with h5py.File(out, "r") as run:  # the scans written (the stream hands out whole blocks)
-            lost = [int(np.count_nonzero(~run[f"cameras/{name}/valid"][:])) for name in names]
+            # /cameras/{name}/valid is written only if some line is invalid
+            lost = [
+                int(np.count_nonzero(~run[f"cameras/{name}/valid"][:]))
+                if "valid" in run[f"cameras/{name}"]
+                else 0
+                for name in names
+            ]
         scans = result["scans"]
         frame_s = args.lines_per_frame / args.rate_hz
         run = (result["clock_zero_unix_s"], scans, args.rate_hz, frame_s)
         unsent = [unsent_lines(log, *run) for log in logs]
+        if args.keep:
+            for log in logs:
+                shutil.copy(log, args.keep)
     recorder_cpu_s = usage.ru_utime + usage.ru_stime
     print(
         f"4 cameras x {args.width} px, {args.rate_hz:,.0f} lines/s each, "
