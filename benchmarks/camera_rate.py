@@ -210,6 +210,7 @@ def main(argv: list[str] | None = None) -> int:
         "packet_size": args.packet_size,
         "buffers": 64,
         "synchronized_clocks": True,  # the fake cameras stamp frames with the host's clock
+        "arrival_lag_frames": 0,  # and send each as its first line is taken
     }
     # the cameras' logs in memory (/dev/shm): a line written per frame must not wait for the
     # disk that the run file is being written to

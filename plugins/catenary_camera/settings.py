@@ -24,6 +24,12 @@ Keys of the source's settings (``--source-option KEY=VALUE`` or ``[record] sourc
                          2): frames are placed by them, every camera alike (false: each
                          camera's clock is mapped to the host's by its frames' arrival, which
                          aligns the cameras only to within their network latencies' spread)
+``arrival_lag_frames``   the least time from a frame's first line to its arrival at the host, in
+                         frame periods (``lines_per_frame`` lines at ``nominal_rate_hz``): a
+                         camera's clock is mapped to the host's by its frames' quickest
+                         arrivals, and a camera sends a frame once its lines are all taken (1;
+                         0 for a camera that sends a frame's leader as its first line is
+                         taken, as Aravis's fake camera does)
 ``nominal_rate_hz``      the run header's ``scan_rate_hz`` with ``encoder`` trigger (line rate
                          at the line speed; default: ``line_rate_hz`` if given, else 1000)
 ``line``, ``track``, ``vehicle``  run identifiers (``""``)
@@ -95,6 +101,7 @@ TOP_KEYS: Final = frozenset(
         "timeout_s",
         "reconnect_interval_s",
         "synchronized_clocks",
+        "arrival_lag_frames",
         "nominal_rate_hz",
         "line",
         "track",
@@ -149,6 +156,7 @@ class GigeSettings:
     timeout_s: float = 2.0
     reconnect_interval_s: float = 1.0
     synchronized_clocks: bool = False
+    arrival_lag_frames: float = 1.0
     nominal_rate_hz: float = 1000.0
     line: str = ""
     track: str = ""
@@ -322,6 +330,9 @@ def parse_settings(settings: Mapping[str, Any]) -> GigeSettings:
     synchronized = settings.get("synchronized_clocks", False)
     if not isinstance(synchronized, bool):
         raise _bad("synchronized_clocks", synchronized, "true or false")
+    lag = settings.get("arrival_lag_frames", 1.0)
+    if isinstance(lag, bool) or not isinstance(lag, int | float) or not 0 <= lag < math.inf:
+        raise _bad("arrival_lag_frames", lag, "a number of frames, 0 or more")
     names = {}
     for key in ("line", "track", "vehicle"):
         value = settings.get(key, "")
@@ -345,6 +356,7 @@ def parse_settings(settings: Mapping[str, Any]) -> GigeSettings:
             _positive("reconnect_interval_s", settings.get("reconnect_interval_s", 1.0))
         ),
         synchronized_clocks=synchronized,
+        arrival_lag_frames=float(lag),
         nominal_rate_hz=nominal,
         direction=direction,
         start_chainage_m=float(start),

@@ -6,8 +6,9 @@ naming it, as is one that cannot be opened or refuses a setting). Their (device,
 pairs give the offset that maps the camera's timestamps to the host clock for placing its
 frames (the least-delay fit of :func:`~catenary_camera.clock.fit_clock`, its drift left out:
 the scans' clock is the cameras'; with ``synchronized_clocks`` one offset from all cameras'
-pairs); each frame's time is also the earliest its predecessors allow (stamps come late,
-never early). The run's scan 0 is the last of those frames that comes, and
+pairs), less ``arrival_lag_frames`` frame periods (a frame arrives, at the quickest, that
+long after its first line); each frame's time is also the earliest its predecessors allow
+(stamps come late, never early). The run's scan 0 is the last of those frames that comes, and
 :attr:`GigeStream.clock_zero_unix_s` its host time (the recorder aligns the CAN bus to it).
 
 One reader thread per camera pops its frames (:class:`~catenary_camera.backend.CameraBackend`),
@@ -182,7 +183,7 @@ class _Reader(threading.Thread):
             learning.add(frame)  # back: its clock is learnt again as when recording started
             if learning.done and learning.last is not None:
                 if self.placing is None:
-                    self.placing = _placing(*learning.pairs())
+                    self.placing = _placing(*learning.pairs(), settings)
                 self._send(_Link(self.camera.name, "up"))
                 self._send(self.place(learning.last, tracked=True))
                 learning = None
@@ -215,9 +216,10 @@ class GigeStream:
             shared = _placing(
                 np.concatenate([device for device, _ in pairs.values()]),
                 np.concatenate([host for _, host in pairs.values()]),
+                settings,
             )
         for name, reader in self._readers.items():
-            reader.placing = shared or _placing(*pairs[name])
+            reader.placing = shared or _placing(*pairs[name], settings)
         placed = [
             self._readers[name].place(learning.last, tracked=True)
             for name, learning in learnt.items()
@@ -383,14 +385,17 @@ class GigeStream:
             reader.join()
 
 
-def _placing(device_s: FloatArray, host_s: FloatArray) -> ClockFit:
-    """The mapping that places frames, from a few (device, host) time pairs [s]: their
-    clock fit's offset at the last of them, drift none. A second of pairs says little of
-    the drift (a few ms of delays over it are thousands of ppm), and the scans' clock is the
-    cameras' own: the drift only matters to the run's host time, fitted over the run."""
+def _placing(device_s: FloatArray, host_s: FloatArray, settings: GigeSettings) -> ClockFit:
+    """The mapping that places frames (the host time of a frame's first line), from a few
+    (device, host) time pairs [s]: their clock fit's offset at the last of them, less the
+    frames' least time from first line to arrival (``arrival_lag_frames`` frame periods),
+    drift none. A second of pairs says little of the drift (a few ms of delays over it are
+    thousands of ppm), and the scans' clock is the cameras' own: the drift only matters to
+    the run's host time, fitted over the run."""
     fit = fit_clock(device_s, host_s)
     last = float(device_s.max())
-    return ClockFit(float(fit.to_host(last)) - last, 0.0, fit.residual_s, fit.samples)
+    lag_s = settings.arrival_lag_frames * settings.frame_period_s
+    return ClockFit(float(fit.to_host(last)) - last - lag_s, 0.0, fit.residual_s, fit.samples)
 
 
 def _steadied(frame: Frame, before: Frame, settings: GigeSettings, modulus: int | None) -> Frame:

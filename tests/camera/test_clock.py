@@ -6,6 +6,8 @@ import numpy as np
 import pytest
 
 from catenary_camera.clock import ClockFit, ClockTracker, fit_clock
+from catenary_camera.settings import parse_settings
+from catenary_camera.stream import _placing
 
 OFFSET_S = 1.0
 DRIFT_PPM = 40.0
@@ -84,3 +86,24 @@ def test_bad_pairs_are_refused() -> None:
         fit_clock([1.0, 2.0, 3.0], [2.0, 3.0])
     with pytest.raises(ValueError, match="finite"):
         fit_clock([1.0, np.nan], [2.0, 3.0])
+
+
+@pytest.mark.parametrize("lag_frames", [0.0, 1.0])
+def test_frames_are_placed_at_their_first_line(lag_frames: float) -> None:
+    """Frames stamped at their first line arrive, at the quickest, ``arrival_lag_frames``
+    frame periods later (after 200 µs mean delays): the placing maps a stamp to the host
+    time of its first line, not to its arrival."""
+    settings = parse_settings(
+        {
+            "cameras": {"cam1": {"address": "10.0.0.1", "width": 8}},
+            "line_rate_hz": 5300,
+            "lines_per_frame": 106,
+            "arrival_lag_frames": lag_frames,
+        }
+    )
+    rng = np.random.default_rng(2)
+    device = 1234.5 + np.arange(50) * settings.frame_period_s  # a second of frames
+    first_line = OFFSET_S + device  # on the host's clock
+    arrival = first_line + lag_frames * settings.frame_period_s
+    placing = _placing(device, arrival + rng.exponential(MEAN_DELAY_S, device.size), settings)
+    assert np.max(np.abs(placing.to_host(device) - first_line)) < 50e-6

@@ -79,6 +79,7 @@ def settings(**extra: object) -> dict[str, object]:
         "timeout_s": 2.0,  # 5 frames: a few may come incomplete (packet loss)
         "reconnect_interval_s": 0.2,
         "synchronized_clocks": True,  # the fake cameras stamp their frames with the host's
+        "arrival_lag_frames": 0,  # and send each as its first line is taken (FakeCamera.fill)
         **extra,
     }
 
@@ -254,6 +255,7 @@ def test_catenary_record_writes_a_run_file_with_valid_lines_and_encoder_position
             "--source-option", f"lines_per_frame={LINES}",
             "--source-option", "packet_size=1500", "--source-option", "timeout_s=2.0",
             "--source-option", "synchronized_clocks=true",
+            "--source-option", "arrival_lag_frames=0",
             "--vehicle-source", "can", "--vehicle-option", f"log={log}",
             "--max-scans", "400", "--block-scans", "100",
         ],
@@ -411,6 +413,7 @@ def test_a_recorded_simulated_run_processes_to_the_truth(
         "--source-option", f"line='{line}'", "--source-option", f"track='{track}'",
         "--source-option", f"start_chainage_m={start_chainage_m}",
         "--source-option", "synchronized_clocks=true",
+        "--source-option", "arrival_lag_frames=0",
         "--vehicle-source", "can", "--vehicle-option", f"log={log}",
         "--max-scans", wanted,
     )  # fmt: skip

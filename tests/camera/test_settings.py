@@ -31,6 +31,7 @@ def test_defaults_and_shared_camera_keys() -> None:
     assert cam2.exposure_us == 80.0
     assert parsed.trigger == "free" and parsed.nominal_rate_hz == 5300.0
     assert parsed.frame_period_s == pytest.approx(256 / 5300)
+    assert parsed.arrival_lag_frames == 1.0  # a frame is sent once its lines are all taken
 
 
 def test_encoder_trigger() -> None:
@@ -57,6 +58,7 @@ def test_encoder_trigger() -> None:
         ({"pixel_format": "RGB8"}, r"cameras.cam1.pixel_format = 'RGB8': expected one of Mono8"),
         ({"packet_size": 100}, r"cameras.cam1.packet_size = 100: expected 576-16384 bytes"),
         ({"direction": "up"}, r"direction = 'up'"),
+        ({"arrival_lag_frames": -1}, r"arrival_lag_frames = -1: expected a number of frames"),
         ({"backend": "pylon"}, r"backend = 'pylon': expected one of aravis, gentl"),
         ({"cti": "/x.cti"}, r"setting cti is for backend 'gentl', not 'aravis'$"),
     ],
