@@ -25,7 +25,10 @@ therefore sends each fake camera a GVCP register read every ``--wake-ms`` (2 ms;
 socket of its own, which the recorder never sees), which ends such a wait within 2 ms, well
 inside a frame period (20 ms); ``--wake-ms 0`` shows the fake cameras as they are. Their
 logs are written to memory (``/dev/shm``): a camera whose log line waited for the disk the
-run file goes to would miss its frame's time too.
+run file goes to would miss its frame's time too. And they run at real-time priority
+(``chrt -f 10``, as root; ``--no-realtime``): a camera is hardware with its own line clock,
+which no program on the host delays, while a fake camera at normal priority waited 30-55 ms
+for a core now and then, all four at once, and missed a frame period.
 
     .venv/bin/python benchmarks/camera_rate.py                  # 20 s at 5,300 lines/s
     .venv/bin/python benchmarks/camera_rate.py --seconds 60 --rate-hz 8000 --width 2048
@@ -111,9 +114,11 @@ def child(args: argparse.Namespace) -> None:
     print(stream.summary(), file=sys.stderr)
 
 
-def start_cameras(genicam: Path, logs: list[Path]) -> list[subprocess.Popen[bytes]]:
-    """The four fake cameras, each logging the frames it sends to its file in ``logs``."""
-    command = ["arv-fake-gv-camera-0.8", "-g", str(genicam), "-d", "stream-thread:2"]
+def start_cameras(genicam: Path, logs: list[Path], realtime: bool) -> list[subprocess.Popen[bytes]]:
+    """The four fake cameras, each logging the frames it sends to its file in ``logs``;
+    ``realtime``: at real-time priority (``chrt -f 10``, root only)."""
+    priority = ["chrt", "-f", "10"] if realtime else []
+    command = [*priority, "arv-fake-gv-camera-0.8", "-g", str(genicam), "-d", "stream-thread:2"]
     cameras = []
     for n, (address, log) in enumerate(zip(ADDRESSES, logs, strict=True), start=1):
         with log.open("wb") as out:
@@ -187,6 +192,12 @@ def main(argv: list[str] | None = None) -> int:
         "(module docstring); 0: none",
     )
     parser.add_argument(
+        "--realtime",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="run the fake cameras at real-time priority (module docstring; root only)",
+    )
+    parser.add_argument(
         "--keep", type=Path, help="keep the run file and the cameras' logs in this folder"
     )
     parser.add_argument("--child", help=argparse.SUPPRESS)
@@ -200,6 +211,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"loopback addresses missing: {', '.join(missing)} (run .ci/run)", file=sys.stderr)
         return 1
     names = [f"cam{n}" for n in range(1, len(ADDRESSES) + 1)]
+    realtime = args.realtime and os.geteuid() == 0
+    if args.realtime and not realtime:
+        print("not root: the fake cameras run at normal priority", file=sys.stderr)
     settings: dict[str, Any] = {
         "cameras": {
             name: {"address": address, "width": args.width}
@@ -224,7 +238,7 @@ def main(argv: list[str] | None = None) -> int:
         genicam = wide_genicam(tmp / "fake-wide.xml")
         out = tmp / "run.h5"
         logs = [Path(log_dir) / f"{name}.log" for name in names]
-        cameras = start_cameras(genicam, logs)
+        cameras = start_cameras(genicam, logs, realtime)
         stop_waking = threading.Event()
         if args.wake_ms > 0:
             waking = threading.Thread(target=wake_cameras, args=(args.wake_ms / 1e3, stop_waking))
@@ -273,9 +287,11 @@ def main(argv: list[str] | None = None) -> int:
             for log in logs:
                 shutil.copy(log, args.keep)
     recorder_cpu_s = usage.ru_utime + usage.ru_stime
+    waking = f"woken every {args.wake_ms:g} ms" if args.wake_ms > 0 else "not woken"
     print(
         f"4 cameras x {args.width} px, {args.rate_hz:,.0f} lines/s each, "
-        f"{args.lines_per_frame} lines per frame, packets of {args.packet_size} B"
+        f"{args.lines_per_frame} lines per frame, packets of {args.packet_size} B; "
+        f"fake cameras {waking}, at {'real-time' if realtime else 'normal'} priority"
     )
     print(
         f"{'camera':8} {'lines':>10} {'lost':>8} {'not sent':>9} {'dropped':>8} "
