@@ -164,6 +164,7 @@ class AravisCamera:
                 device_time_s=device_ns * 1e-9 if device_ns else host_s,
                 host_time_s=host_s,
                 data=bytes(buffer.get_data()) if complete else None,
+                host_stamped=not device_ns,
             )
         finally:
             self._stream.push_buffer(buffer)

@@ -23,7 +23,9 @@ gap. Frame ids wrap (GigE Vision's 16-bit ids run 1-65535, then 1 again: ``frame
   so, by as much as the least of them. Until then the frames that say so are held
   (:meth:`ScanAssembler.reached` stops before the first of them): a resync moves them with
   it (those later still, after a second skip, wait for their own frames to tell), a frame
-  on time again confirms them.
+  on time again confirms them. A camera that gives no timestamps of its own (GenTL
+  producers may not) is timed by its frames' arrival on the host, which a busy host or link
+  delays by any amount: its frames are never held or resynced as late, only as early.
 * Encoder-triggered lines (``quantum = N``): every camera sees the same encoder pulses, so
   their frames hold the same lines; a camera's first frame goes to the nearest multiple of
   ``N`` by time, then its ids alone carry it (the speed varies, so time cannot check it).
@@ -153,10 +155,19 @@ class ScanAssembler:
         camera.last_id = None
         camera.held.clear()
 
-    def add(self, name: str, frame_id: int, time_s: float | None, lines: Lines | None) -> None:
+    def add(
+        self,
+        name: str,
+        frame_id: int,
+        time_s: float | None,
+        lines: Lines | None,
+        host_stamped: bool = False,
+    ) -> None:
         """A frame of ``name``: its id, its first line's host time [s] and its lines
         ``[N, W]``; an incomplete frame has lines None (invalid) and time None (a lost
-        leader leaves a buffer's stamp stale): it is placed by its id alone, if at all."""
+        leader leaves a buffer's stamp stale): it is placed by its id alone, if at all.
+        ``host_stamped``: the time is the frame's arrival on the host, which says it came
+        late, never that its lines were (no resync on it); early, it still moves it."""
         camera = self._cameras[name]
         n = self.lines_per_frame
         step = 0 if camera.last_id is None else frame_id - camera.last_id
@@ -180,7 +191,7 @@ class ScanAssembler:
             first = camera.next_scan + (step - 1) * n
             camera.counts.missing_frames += step - 1
             if not self.encoder and time_s is not None:
-                first += self._check_time(camera, measured - first, first)
+                first += self._check_time(camera, measured - first, first, host_stamped)
         camera.last_id = frame_id
         if lines is None:
             camera.counts.incomplete_frames += 1
@@ -193,7 +204,7 @@ class ScanAssembler:
             self._anchors.append((first, time_s - self.start_s))
         camera.next_scan = max(camera.next_scan, first + n)
 
-    def _check_time(self, camera: _Camera, lateness: float, first: int) -> int:
+    def _check_time(self, camera: _Camera, lateness: float, first: int, host_stamped: bool) -> int:
         """How far [lines] to move a free-running frame placed at scan ``first`` by its id,
         whose time places it ``lateness`` lines later; a resync moves the frames held with it
         (module docstring)."""
@@ -203,6 +214,8 @@ class ScanAssembler:
                 return 0
             camera.counts.resyncs += 1  # early: stamps never are, the camera is ahead
             return round(lateness)
+        if host_stamped:  # it arrived late: a busy host or link, not lines taken late
+            return 0
         camera.held.append((first, lateness))
         if len(camera.held) < RESYNC_FRAMES:
             return 0

@@ -27,7 +27,9 @@ class Frame:
 
     ``complete``: every packet arrived (else ``data`` is None: its lines are invalid).
     ``device_time_s`` is the camera's timestamp of the frame [s, the camera's clock];
-    ``host_time_s`` the host's UNIX time when it started arriving [s].
+    ``host_time_s`` the host's UNIX time when it started arriving [s]. ``host_stamped``: the
+    frame carries no timestamp of the camera's, and ``device_time_s`` is ``host_time_s``,
+    which says when the frame arrived, not when its lines were taken.
     """
 
     frame_id: int
@@ -35,6 +37,7 @@ class Frame:
     device_time_s: float
     host_time_s: float
     data: bytes | None
+    host_stamped: bool = False
 
 
 class CameraBackend(Protocol):

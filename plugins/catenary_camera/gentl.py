@@ -347,6 +347,7 @@ class GenTLCamera:
             device_time_s=device_ns * 1e-9 if device_ns else host_s,
             host_time_s=host_s,
             data=data,
+            host_stamped=not device_ns,
         )
 
     def disconnect(self) -> None:

@@ -71,12 +71,14 @@ def _dtype(pixel_format: str) -> np.dtype[np.uint8] | np.dtype[np.uint16]:
 
 @dataclass(frozen=True)
 class _Placed:
-    """A frame ready for the assembler: its id, first line's host time [s] and lines."""
+    """A frame ready for the assembler: its id, first line's host time [s] and lines;
+    ``host_stamped``: that time is the host's (``Frame.host_stamped``)."""
 
     name: str
     frame_id: int
     time_s: float | None  # None: an incomplete frame, whose stamp may be stale
     lines: np.ndarray[Any, Any] | None
+    host_stamped: bool = False
 
 
 @dataclass(frozen=True)
@@ -131,7 +133,8 @@ class _Reader(threading.Thread):
             if lines is not None and lines.shape[0] != self._settings.lines_per_frame:
                 self.last_error = f"frame of {lines.shape[0]} lines"
                 lines = None
-        return _Placed(self.camera.name, frame.frame_id, self._host_s(frame.device_time_s), lines)
+        time_s = self._host_s(frame.device_time_s)
+        return _Placed(self.camera.name, frame.frame_id, time_s, lines, frame.host_stamped)
 
     def _host_s(self, device_s: float) -> float:
         assert self.placing is not None  # set from the pre-roll (GigeStream) or settling
@@ -254,7 +257,9 @@ class GigeStream:
             camera_offset_px={c.name: c.offset_px for c in settings.cameras},
         )
         for frame in placed:
-            self._assembler.add(frame.name, frame.frame_id, frame.time_s, frame.lines)
+            self._assembler.add(
+                frame.name, frame.frame_id, frame.time_s, frame.lines, frame.host_stamped
+            )
         for reader in self._readers.values():
             reader.start()
         self._closed = False
@@ -273,7 +278,9 @@ class GigeStream:
                 if item.state == "up":
                     self._assembler.restart(item.name)
             else:
-                self._assembler.add(item.name, item.frame_id, item.time_s, item.lines)
+                self._assembler.add(
+                    item.name, item.frame_id, item.time_s, item.lines, item.host_stamped
+                )
             try:
                 item = self._queue.get_nowait()
             except queue.Empty:

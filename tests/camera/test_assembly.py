@@ -132,6 +132,22 @@ def test_one_late_stamp_moves_nothing_but_an_early_one_does() -> None:
     assert asm.counts("a").resyncs == 1
 
 
+def test_host_stamped_frames_arriving_late_stay_where_their_ids_put_them() -> None:
+    asm = assembler()
+    asm.add("a", 1, T0, frame(0), host_stamped=True)
+    # a busy host: every later frame arrives two frames late, for twice RESYNC_FRAMES frames
+    for k in range(1, 2 * RESYNC_FRAMES):
+        asm.add("a", 1 + k, T0 + (k + 2) * N / RATE, frame(k * N), host_stamped=True)
+    assert asm.reached("a") == 2 * RESYNC_FRAMES * N and asm.counts("a").resyncs == 0
+    scans = asm.take(asm.reached("a"))
+    assert scans.valid["a"].all()
+    check_in_place(scans.lines["a"], scans.valid["a"])
+    # one that arrives before its lines could have been taken: the first was placed late
+    k = 2 * RESYNC_FRAMES
+    asm.add("a", 1 + k, T0 + (k - 2) * N / RATE, frame((k - 2) * N), host_stamped=True)
+    assert asm.counts("a").resyncs == 1
+
+
 def test_lines_before_the_run_or_already_handed_out_are_dropped() -> None:
     asm = assembler()
     asm.add("a", 1, T0 - 3 / RATE, frame(-3))  # started 3 lines before scan 0
