@@ -156,10 +156,10 @@ def test_packet_loss_gives_invalid_lines_never_wrong_ones(
 @pytest.mark.slow
 @pytest.mark.xfail(
     strict=False,
-    reason="issue 20, open: under load 4 of 57 runs still failed once the stall of the other "
-    "fake cameras at close was removed: twice a stream got no frame from the restarted fake "
-    "camera (2 reconnections), once its lines were placed 2 frames off (cause not confirmed), "
-    "once the process crashed in GLib (with an earlier variant of the fix)",
+    reason="issue 20, open: under load 4 of 57 runs failed on 2026-12-02 (twice a stream got "
+    "no frame from the restarted fake camera, once its lines were placed 2 frames off, once "
+    "the process crashed in GLib); on 2026-12-03 130 of 133 passed, twice the process died "
+    "in GLib under heavy load (README, Live cameras)",
 )
 def test_a_camera_dropping_off_is_reconnected(
     cameras: dict[str, FakeCamera], genicam: Path
