@@ -323,6 +323,26 @@ def test_a_messenger_alone_where_its_contact_wire_was_lost_is_uncertain() -> Non
     assert not np.any(uncertain[truth == 0])
 
 
+@pytest.mark.parametrize("messengers", [1, 2])
+def test_a_messenger_first_seen_where_its_contact_wire_was_lost_is_uncertain(
+    messengers: int,
+) -> None:
+    # the contact wire seen over 60 m, then not matched over 12 m (a camera blinded and
+    # glare); its messenger (an overlap's two) 1,200 mm above seen only there
+    stream = Stream(6000, seed=16)
+    p = stream.position
+    x = zigzag(p)
+    seen = (p < 60.0) | (p > 72.0)
+    stream.wire(0, x, np.full(p.shape, 1700.0), seen)
+    lost = (p > 61.0) & (p < 71.0)
+    for k in range(messengers):
+        stream.wire(10 + k, x + 150.0 * k, np.full(p.shape, 2900.0), lost, miss=0.0)
+    _, _, truth, _, _, uncertain = run(stream, 1024, uncertain_rows=True)
+    assert np.count_nonzero(truth >= 10) > 0.9 * messengers * 10.0 / SPACING_M
+    assert np.all(uncertain[truth >= 10])
+    assert not np.any(uncertain[truth == 0])
+
+
 def test_a_wire_higher_than_contact_wires_run_is_a_messenger() -> None:
     # the contact wire unseen over the first 40 m (a camera glared, another looking along
     # both wires); its messenger 3,600 mm above the roof, seen all along

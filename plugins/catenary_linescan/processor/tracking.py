@@ -34,7 +34,10 @@ the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 m
    ``messenger_gap_mm`` below the point's track, mark it ``selection_uncertain`` (a column
    of the released points): the selection cannot tell which wire runs there. So
    does a track alone in view that was last seen above another wire, not level with one:
-   a messenger whose contact wire the cameras lost; and a point with another track within
+   a messenger whose contact wire the cameras lost; so does a point higher than a wire
+   that ended before it could have climbed since (``CONTACT_GRADIENT_MM_PER_M``), and the
+   rest of its track while it stays alone: a messenger first seen where its contact wire
+   was lost; and a point with another track within
    ``CROSSING_MM`` across at its height (a turnout's crossing: the cameras see one image of
    both wires, located between them);
 5. **numbers** each track at its first contact point (0, 1, ... in order of appearance) and
@@ -92,6 +95,10 @@ CROSSING_MM = 20.0
 """Distance across [mm] within which two wires at one height (a turnout's crossing) make one
 image in the cameras: the widest wire (15 mm) and the blur. Neither is located there."""
 
+
+CONTACT_GRADIENT_MM_PER_M = 25.0
+"""Steepest a contact wire's height changes along the track [mm/m]: 1:40, the steepest
+gradient EN 50119 allows (at the lowest speeds)."""
 
 MIN_TRACK_POINTS = 5
 """Fewest points of a track accepted as a wire."""
@@ -818,8 +825,10 @@ class WireTracker:
         wire_track = np.isin(released.track, list(tracks))
         above, company, crossing = self._above_a_wire(released, tracks)
         contact = wire_track & ~above & (released.z_mm <= self.config.max_height_mm)
+        above_lost = contact & self._above_a_lost_wire(released)
         uncertain = contact & (crossing | self._lower_wire_beneath(released, contact, tracks))
-        uncertain |= contact & self._above_before(released, wire_track, above, company)
+        uncertain |= above_lost
+        uncertain |= contact & self._above_before(released, wire_track, above | above_lost, company)
         # numbers, for tracks whose first contact point this is (in order of appearance)
         wire = np.full(released.scan.shape[0], -1, dtype=np.int64)
         rows = np.flatnonzero(contact)
@@ -952,6 +961,23 @@ class WireTracker:
             crossing |= np.isin(released.track, others) & (across <= CROSSING_MM) & level
         above = resting | (released.z_mm > lowest + self.config.messenger_gap_mm)
         return above, company, crossing
+
+    def _above_a_lost_wire(self, released: _Store) -> NDArray[np.bool_]:
+        """Whether each released point lies above where a numbered wire that ended before it
+        can run now (step 4): more than ``messenger_gap_mm`` plus ``CONTACT_GRADIENT_MM_PER_M``
+        of the distance since its end above its last point, as far along as that wire was
+        seen (``reidentify_m`` at most). A contact wire does not climb to its messenger's
+        height: such a point is a messenger whose contact wire the cameras lost before they
+        saw the messenger, or a wire out of running."""
+        config = self.config
+        result = np.zeros(released.scan.shape[0], dtype=bool)
+        for lost in self._lost:  # one step per lost wire
+            after = released.position_m - lost.end_m
+            remembered = min(lost.end_m - lost.start_m, config.reidentify_m)
+            near = (released.track != lost.id) & (after > 0.0) & (after <= remembered)
+            rise = config.messenger_gap_mm + CONTACT_GRADIENT_MM_PER_M * after
+            result |= near & (released.z_mm > lost.end_z + rise)
+        return result
 
     def _above_before(
         self,
