@@ -35,9 +35,10 @@ the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 m
    of the released points): the selection cannot tell which wire runs there. So
    does a track alone in view that was last seen above another wire, not level with one:
    a messenger whose contact wire the cameras lost; so does a point higher than a wire
-   that ended before it could have climbed since (``CONTACT_GRADIENT_MM_PER_M``), and the
-   rest of its track while it stays alone: a messenger first seen where its contact wire
-   was lost; and a point with another track within
+   that ended before it (seen over a longer stretch than the point's track) could have
+   climbed since (``CONTACT_GRADIENT_MM_PER_M``), and the rest of its track while it stays
+   alone: a messenger first seen, or seen with another, where its contact wire was lost;
+   and a point with another track within
    ``CROSSING_MM`` across at its height (a turnout's crossing: the cameras see one image of
    both wires, located between them);
 5. **numbers** each track at its first contact point (0, 1, ... in order of appearance) and
@@ -302,6 +303,11 @@ class _Track:
     last_points: int = 0
     last_fragment: int = -1
     before: tuple[float, int, float, float, float, float, int] | None = None
+
+    @property
+    def span_m(self) -> float:
+        """Length of track from its first point to its last [m]."""
+        return self.end_m - self.start_m
 
     def snapshot(self) -> tuple[float, int, float, float, float, float, int]:
         return (
@@ -825,7 +831,7 @@ class WireTracker:
         wire_track = np.isin(released.track, list(tracks))
         above, company, crossing = self._above_a_wire(released, tracks)
         contact = wire_track & ~above & (released.z_mm <= self.config.max_height_mm)
-        above_lost = contact & self._above_a_lost_wire(released)
+        above_lost = contact & self._above_a_lost_wire(released, tracks)
         uncertain = contact & (crossing | self._lower_wire_beneath(released, contact, tracks))
         uncertain |= above_lost
         uncertain |= contact & self._above_before(released, wire_track, above | above_lost, company)
@@ -962,21 +968,27 @@ class WireTracker:
         above = resting | (released.z_mm > lowest + self.config.messenger_gap_mm)
         return above, company, crossing
 
-    def _above_a_lost_wire(self, released: _Store) -> NDArray[np.bool_]:
+    def _above_a_lost_wire(
+        self, released: _Store, tracks: Mapping[int, _Track]
+    ) -> NDArray[np.bool_]:
         """Whether each released point lies above where a numbered wire that ended before it
         can run now (step 4): more than ``messenger_gap_mm`` plus ``CONTACT_GRADIENT_MM_PER_M``
         of the distance since its end above its last point, as far along as that wire was
         seen (``reidentify_m`` at most). A contact wire does not climb to its messenger's
-        height: such a point is a messenger whose contact wire the cameras lost before they
-        saw the messenger, or a wire out of running."""
+        height: such a point is a messenger whose contact wire the cameras lost, or a wire
+        out of running. The lost wire must have been seen over as long a stretch as the
+        point's track: a short run of ghosts beneath a wire is no evidence against it."""
         config = self.config
+        span = np.full(released.scan.shape[0], np.inf)
+        for track_id, track in tracks.items():  # one step per wire in view
+            span[released.track == track_id] = track.span_m
         result = np.zeros(released.scan.shape[0], dtype=bool)
         for lost in self._lost:  # one step per lost wire
             after = released.position_m - lost.end_m
-            remembered = min(lost.end_m - lost.start_m, config.reidentify_m)
-            near = (released.track != lost.id) & (after > 0.0) & (after <= remembered)
+            remembered = min(lost.span_m, config.reidentify_m)
+            near = (span <= lost.span_m) & (after > 0.0) & (after <= remembered)
             rise = config.messenger_gap_mm + CONTACT_GRADIENT_MM_PER_M * after
-            result |= near & (released.z_mm > lost.end_z + rise)
+            result |= near & (released.track != lost.id) & (released.z_mm > lost.end_z + rise)
         return result
 
     def _above_before(
