@@ -213,6 +213,27 @@ def test_a_clamp_in_place_of_the_wire_is_set_apart() -> None:
     assert np.count_nonzero(truth == 0) == 3000 - 3
 
 
+@pytest.mark.parametrize("block", [1024, 333])
+def test_a_fitting_s_points_scattered_off_the_wire_are_dropped(block: int) -> None:
+    # the wire missed for 3 scans where a clamp's silhouette gives points 6 mm across,
+    # 36 mm up, then 7 mm across the other way: each out of the others' link gate, they
+    # break the wire's track in two, yet none is the wire
+    stream = Stream(3000, seed=3)
+    p = stream.position
+    x = zigzag(p)
+    z = np.full(p.shape, 2000.0)
+    present = np.ones(p.shape, bool)
+    present[1500:1503] = False
+    stream.wire(0, x, z, present, miss=0.0)
+    for i, (dx, dz) in enumerate([(6.0, 3.0), (2.0, 36.0), (-7.0, 1.6)]):
+        s = np.array([1500 + i])
+        stream.points(21, s, x[s] + dx, z[s] + dz)
+    _scan, wire, truth, _, _, _ = run(stream, block)
+    assert set(np.unique(truth).tolist()) == {0}
+    assert np.unique(wire).tolist() == [0]
+    assert np.count_nonzero(truth == 0) == 3000 - 3
+
+
 def test_messengers_are_removed_by_height() -> None:
     stream = Stream(6000, seed=3)
     p = stream.position

@@ -119,6 +119,13 @@ EXCURSION_M = 0.15
 """Longest excursion of a track that is undone when the track comes back [m]: a fitting's
 face (a clamp's, 30-50 mm along the track) taking the wire's place, with room."""
 
+NEIGHBOURS = 4
+"""Points of its wire on either side against which a point is checked (``_consistent``)."""
+
+NEIGHBOUR_M = 0.3
+"""Farthest a neighbour a point is checked against may lie along the track [m]: twice
+``EXCURSION_M``, so that a fitting's few points have wire on both sides of them."""
+
 MIN_TRACK_M = 0.5
 """Shortest track accepted as a wire [m]. Fittings cut by the scanning plane are short along
 the track (a dropper 5 mm, a steady arm 26 mm, a dropper clamp 30 mm, a registration clamp or
@@ -301,7 +308,7 @@ class _Track:
     last_start_m: float = 0.0
     last_jumped: bool = False
     last_points: int = 0
-    last_fragment: int = -1
+    last_fragments: list[int] = field(default_factory=list)  # in the block being added
     before: tuple[float, int, float, float, float, float, int] | None = None
 
     @property
@@ -402,6 +409,8 @@ class WireTracker:
         # verified point released last
         self._last_released: dict[int, tuple[int, float, float, float]] = {}
         self._last_verified: dict[int, tuple[int, float, float, float]] = {}
+        # per wire number, the position, x and z of the last NEIGHBOURS points released
+        self._recent: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = {}
         # verified points released within max_gap_m (their position, height and track): step 4
         self._behind = _Store.empty()
         self._released_m = -np.inf  # position of the last point released
@@ -515,7 +524,7 @@ class WireTracker:
         bounds = np.concatenate([[0], np.cumsum(sizes)])
         track_of_fragment = np.full(fragments.shape[0], -1, dtype=np.int64)
         for open_track in self._open.values():
-            open_track.last_fragment = -1
+            open_track.last_fragments = []
         # by first scan, longest first: a wire's fragment claims its track before a clamp's
         for f in np.lexsort((-sizes, scan[fragments])):  # one step per fragment, not per point
             rows = members[bounds[f] : bounds[f + 1]]
@@ -709,14 +718,25 @@ class WireTracker:
         *,
         jumped: bool,
     ) -> _Track:
-        """Append a fragment to a track: its end, its slope, what undoing it needs."""
+        """Append a fragment to a track: its end, its slope, what undoing it needs. A fragment
+        that jumps out of the tight gate again within ``EXCURSION_M`` of an excursion's start
+        (a fitting's points scattered over a few scans) lengthens the excursion: undoing it
+        restores the track as it was before its first fragment."""
         p0, s0 = float(position[rows[0]]), int(scan[rows[0]])
-        best.before = best.snapshot() if best.points else None
+        if not (
+            jumped
+            and best.last_jumped
+            and best.before is not None
+            and p0 - best.last_start_m <= EXCURSION_M
+        ):
+            best.before = best.snapshot() if best.points else None
+            best.last_start_m = p0
+            best.last_start_scan = s0
+            best.last_points = 0
+            best.last_fragments = []
         best.last_jumped = jumped
-        best.last_start_m = p0
-        best.last_start_scan = s0
-        best.last_points = int(rows.shape[0])
-        best.last_fragment = fragment
+        best.last_points += int(rows.shape[0])
+        best.last_fragments.append(fragment)
         last = rows[-1]
         best.points += rows.shape[0]
         best.end_m = float(position[last])
@@ -746,13 +766,13 @@ class WireTracker:
             points=track.last_points,
         )
         self._next_track += 1
-        if track.last_fragment >= 0:  # in the block being added
-            track_of_fragment[track.last_fragment] = apart.id
-            apart.start_m = track.before[0]  # approximately: it started after the track's end
-        else:  # held in the store from an earlier block
-            rows = (self._store.track == track.id) & (self._store.scan >= track.last_start_scan)
-            self._store.track[rows] = apart.id
-            apart.start_m = float(self._store.position_m[rows].min())
+        for fragment in track.last_fragments:  # in the block being added
+            track_of_fragment[fragment] = apart.id
+        # held in the store from an earlier block
+        rows = (self._store.track == track.id) & (self._store.scan >= track.last_start_scan)
+        self._store.track[rows] = apart.id
+        # approximately where the block's fragments are: it started after the track's end
+        apart.start_m = float(self._store.position_m[rows].min()) if rows.any() else track.before[0]
         self._open[apart.id] = apart
         track.restore(track.before)
         track.before = None
@@ -856,6 +876,7 @@ class WireTracker:
             wire[released.track == track_id] = track.wire
         keep = contact & (wire >= 0)
         keep &= self._on_track(released)
+        keep &= self._consistent(released, wire, keep, tracks)
         self._remember(released, tracks)
         return TrackedPoints(
             scan=released.scan[keep],
@@ -1090,6 +1111,63 @@ class WireTracker:
             )
         return ok
 
+    def _consistent(
+        self,
+        released: _Store,
+        wire: IntArray,
+        candidate: NDArray[np.bool_],
+        tracks: Mapping[int, _Track],
+    ) -> NDArray[np.bool_]:
+        """Whether each ``candidate`` released point lies where its wire's neighbours put it
+        (others: true). The wire is continuous: a point is checked against the medians of
+        its wire's ``NEIGHBOURS`` points on either side within ``NEIGHBOUR_M`` (interpolated
+        between the two medians' positions), within ``link_mm`` plus three robust
+        deviations of the neighbours about their medians, in ``x`` and in ``z``. A fitting's
+        points that scatter off the wire for a few scans (a clamp, a dropper's foot) fail,
+        also where they broke the wire's track in two (checked by wire number, not by
+        track); a wire's own scatter, however wide, does not. A point with fewer than two
+        neighbours on a side (a wire's end, a sparse stretch) is not checked. Every point of
+        the wire's tracks is a neighbour, so that the result does not depend on where the
+        run is cut; remembers each wire's last points for the next call."""
+        ok = np.ones(released.scan.shape[0], dtype=bool)
+        store = self._store
+        names = ("position_m", "x_mm", "z_mm")
+        steps = np.arange(1, NEIGHBOURS + 1)
+        for number in np.unique(wire[candidate]).tolist():  # one step per wire
+            mine = np.flatnonzero(wire == number)
+            own = [t for t, track in tracks.items() if track.wire == number]
+            ahead = np.flatnonzero(np.isin(store.track, own))[:NEIGHBOURS]
+            behind = self._recent.get(number, (np.zeros(0),) * 3)
+            p, x, z = (
+                np.concatenate([old, getattr(released, n)[mine], getattr(store, n)[ahead]])
+                for old, n in zip(behind, names, strict=True)
+            )
+            rows = behind[0].shape[0] + np.arange(mine.shape[0])
+            sides = [_neighbours(p, rows, rows[:, None] + sign * steps) for sign in (-1, 1)]
+            check = (sides[0].sum(axis=1) >= 2) & (sides[1].sum(axis=1) >= 2) & candidate[mine]
+            if check.any():
+                at = rows[check]
+                before = _side_medians(sides[0][check], at, -1, p, x, z)
+                after = _side_medians(sides[1][check], at, 1, p, x, z)
+                span = np.where(after[0] > before[0], after[0] - before[0], 1.0)
+                t = np.clip((p[at] - before[0]) / span, 0.0, 1.0)
+                off = np.zeros(at.shape[0], dtype=bool)
+                for k, v in ((1, x), (2, z)):
+                    spread = before[k + 2] + after[k + 2]
+                    tolerance = self.config.link_mm + 3.0 * 1.4826 * spread
+                    expected = before[k] + t * (after[k] - before[k])
+                    off |= np.abs(v[at] - expected) > tolerance
+                ok[mine[check]] = ~off
+            self._recent[number] = tuple(  # type: ignore[assignment]
+                np.concatenate([old, getattr(released, n)[mine]])[-NEIGHBOURS:]
+                for old, n in zip(behind, names, strict=True)
+            )
+        if released.scan.shape[0]:  # forget wires no later point can have as neighbours
+            edge = float(released.position_m[-1]) - NEIGHBOUR_M
+            for number in [w for w, (p, _, _) in self._recent.items() if p[-1] < edge]:
+                del self._recent[number]
+        return ok
+
     def _remember(self, released: _Store, tracks: Mapping[int, _Track]) -> None:
         """Keep each track's last released point; forget tracks that hold nothing more and
         ended more than ``max_gap_m`` before the last point released."""
@@ -1127,6 +1205,41 @@ class WireTracker:
         for book in (self._last_released, self._last_verified, self._above):
             for track_id in [t for t in book if t not in alive]:
                 del book[track_id]
+
+
+def _neighbours(p: FloatArray, rows: IntArray, index: IntArray) -> NDArray[np.bool_]:
+    """Which of the candidate neighbours ``index`` ``(m, k)`` of each row ``(m,)`` exist and
+    lie within ``NEIGHBOUR_M`` of it along the track (``p``: positions in order)."""
+    inside = (index >= 0) & (index < p.shape[0])
+    near = np.abs(p[np.clip(index, 0, p.shape[0] - 1)] - p[rows][:, None]) <= NEIGHBOUR_M
+    return np.asarray(inside & near, dtype=bool)
+
+
+def _side_medians(
+    near: NDArray[np.bool_], rows: IntArray, sign: int, p: FloatArray, x: FloatArray, z: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+    """Median position, ``x`` and ``z`` of each row's neighbours on one side (``sign``: -1
+    before, 1 after; ``near`` ``(m, NEIGHBOURS)`` which exist), and the median absolute
+    deviation of their ``x`` and of their ``z`` about their medians (half of it each: the
+    two sides' halves add up to about the pooled deviation)."""
+    index = np.clip(rows[:, None] + sign * np.arange(1, NEIGHBOURS + 1), 0, p.shape[0] - 1)
+    values = [np.where(near, v[index], np.nan) for v in (p, x, z)]
+    medians = [_row_median(v) for v in values]
+    deviations = [
+        0.5 * _row_median(np.abs(v - m[:, None]))
+        for v, m in zip(values[1:], medians[1:], strict=True)
+    ]
+    return medians[0], medians[1], medians[2], deviations[0], deviations[1]
+
+
+def _row_median(values: FloatArray) -> FloatArray:
+    """Median of each row of ``values`` ``(m, k)`` over its finite entries (NaN: none; every
+    row has one at least): a sort of a few columns, quicker than ``np.nanmedian``."""
+    ordered = np.sort(values, axis=1)  # NaN last
+    count = np.isfinite(values).sum(axis=1)
+    low = np.take_along_axis(ordered, ((count - 1) // 2)[:, None], axis=1)[:, 0]
+    high = np.take_along_axis(ordered, (count // 2)[:, None], axis=1)[:, 0]
+    return np.asarray(0.5 * (low + high), dtype=float)
 
 
 def _window_count(rows: NDArray[np.bool_], first: IntArray, last: IntArray) -> IntArray:
