@@ -47,7 +47,10 @@ the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 m
 6. **releases** the points of every scan once no undecided track could still claim it and
    ``max_gap_m`` of track beyond it has been seen (so that the result does not depend on
    how the run is cut into blocks): each :meth:`WireTracker.push` returns what is decided,
-   :meth:`WireTracker.finish` the rest.
+   :meth:`WireTracker.finish` the rest. A point off the line its wire's neighbours on both
+   sides give (``NEIGHBOURS`` within ``NEIGHBOUR_M``) by more than the link gate and their
+   own scatter is left out: a fitting's points scattered over a few scans, even where they
+   broke the wire's track in two.
 
 Everything the tracker holds back spans a few metres of track before the last block's end
 (``min_track_m`` and ``max_gap_m`` twice at most), so its memory is bounded whatever the
