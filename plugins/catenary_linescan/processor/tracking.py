@@ -311,7 +311,7 @@ class _Track:
     last_start_m: float = 0.0
     last_jumped: bool = False
     last_points: int = 0
-    last_fragments: list[int] = field(default_factory=list)  # in the block being added
+    last_fragment: int = -1
     before: tuple[float, int, float, float, float, float, int] | None = None
 
     @property
@@ -527,7 +527,7 @@ class WireTracker:
         bounds = np.concatenate([[0], np.cumsum(sizes)])
         track_of_fragment = np.full(fragments.shape[0], -1, dtype=np.int64)
         for open_track in self._open.values():
-            open_track.last_fragments = []
+            open_track.last_fragment = -1
         # by first scan, longest first: a wire's fragment claims its track before a clamp's
         for f in np.lexsort((-sizes, scan[fragments])):  # one step per fragment, not per point
             rows = members[bounds[f] : bounds[f + 1]]
@@ -721,25 +721,14 @@ class WireTracker:
         *,
         jumped: bool,
     ) -> _Track:
-        """Append a fragment to a track: its end, its slope, what undoing it needs. A fragment
-        that jumps out of the tight gate again within ``EXCURSION_M`` of an excursion's start
-        (a fitting's points scattered over a few scans) lengthens the excursion: undoing it
-        restores the track as it was before its first fragment."""
+        """Append a fragment to a track: its end, its slope, what undoing it needs."""
         p0, s0 = float(position[rows[0]]), int(scan[rows[0]])
-        if not (
-            jumped
-            and best.last_jumped
-            and best.before is not None
-            and p0 - best.last_start_m <= EXCURSION_M
-        ):
-            best.before = best.snapshot() if best.points else None
-            best.last_start_m = p0
-            best.last_start_scan = s0
-            best.last_points = 0
-            best.last_fragments = []
+        best.before = best.snapshot() if best.points else None
         best.last_jumped = jumped
-        best.last_points += int(rows.shape[0])
-        best.last_fragments.append(fragment)
+        best.last_start_m = p0
+        best.last_start_scan = s0
+        best.last_points = int(rows.shape[0])
+        best.last_fragment = fragment
         last = rows[-1]
         best.points += rows.shape[0]
         best.end_m = float(position[last])
@@ -769,13 +758,13 @@ class WireTracker:
             points=track.last_points,
         )
         self._next_track += 1
-        for fragment in track.last_fragments:  # in the block being added
-            track_of_fragment[fragment] = apart.id
-        # held in the store from an earlier block
-        rows = (self._store.track == track.id) & (self._store.scan >= track.last_start_scan)
-        self._store.track[rows] = apart.id
-        # approximately where the block's fragments are: it started after the track's end
-        apart.start_m = float(self._store.position_m[rows].min()) if rows.any() else track.before[0]
+        if track.last_fragment >= 0:  # in the block being added
+            track_of_fragment[track.last_fragment] = apart.id
+            apart.start_m = track.before[0]  # approximately: it started after the track's end
+        else:  # held in the store from an earlier block
+            rows = (self._store.track == track.id) & (self._store.scan >= track.last_start_scan)
+            self._store.track[rows] = apart.id
+            apart.start_m = float(self._store.position_m[rows].min())
         self._open[apart.id] = apart
         track.restore(track.before)
         track.before = None
