@@ -698,6 +698,9 @@ class WireTracker:
                 )
             )
             distance = fit(before) if undo and before is not None else fit(now)
+            # a confirmed wire within its gate continues before a fragment not yet confirmed
+            # (a fitting's point set apart from it)
+            distance += 0.0 if track.confirmed else 1.0
             if distance < best_distance:
                 best, best_distance, detach = track, distance, undo
         if best is not None and detach:
