@@ -12,11 +12,12 @@ the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 m
    first point); a fitting that takes the wire's place for a few scans jumps out of it;
 2. **joins** fragments to the open tracks across gaps of up to ``max_gap_m`` (a missed
    detection, a clamp, a stretch where a blinded camera and a miss leave fewer than three
-   views), predicting each track's end linearly (one loop step per fragment, not per point).
-   A longer fragment takes a track over from a shorter one that had continued it where the
-   wire was missed (a clamp's few points), and a short excursion out of the tight gate that
-   the track comes back from is undone; the fragment set apart is a track of its own. A
-   fragment of unverified (two-view) points only continues a track within the tight gate;
+   views), predicting each track's end linearly (one loop step per fragment, not per point);
+   a confirmed track within its gate goes before one not yet confirmed. A longer fragment
+   takes a track over from a shorter one that had continued it where the wire was missed
+   (a clamp's few points), and a short excursion out of the tight gate that the track comes
+   back from is undone; the fragment set apart is a track of its own. A fragment of
+   unverified (two-view) points only continues a track within the tight gate;
 3. **confirms** a track when it spans ``min_track_m`` of track (``MIN_TRACK_M``) with points
    in ``min_coverage`` of its scans: fittings never do; a track that ends unconfirmed is
    dropped with its points;
