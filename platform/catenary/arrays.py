@@ -23,6 +23,7 @@ __all__ = [
     "IntArray",
     "UInt8Array",
     "UInt16Array",
+    "row_median",
     "take",
 ]
 
@@ -44,3 +45,14 @@ def take(values: NDArray[_T], index: NDArray[np.integer[Any]], fill: object) -> 
     hit = index >= 0
     out[hit] = values[index[hit]]
     return out
+
+
+def row_median(values: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Median of the finite values of each row of a narrow ``(m, k)`` array (NaN if none):
+    a sort of a few columns, quicker than ``np.nanmedian``."""
+    ordered = np.sort(np.where(np.isfinite(values), values, np.inf), axis=1)
+    count = np.isfinite(values).sum(axis=1)
+    low = np.take_along_axis(ordered, np.maximum((count - 1) // 2, 0)[:, np.newaxis], 1)[:, 0]
+    high = np.take_along_axis(ordered, np.maximum(count // 2, 0)[:, np.newaxis], 1)[:, 0]
+    with np.errstate(invalid="ignore"):
+        return np.where(count > 0, 0.5 * (low + high), np.nan)

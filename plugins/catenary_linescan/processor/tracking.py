@@ -66,7 +66,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from catenary.arrays import FloatArray, IntArray
+from catenary.arrays import FloatArray, IntArray, row_median
 
 __all__ = [
     "MIN_TRACK_M",
@@ -1128,7 +1128,6 @@ class WireTracker:
         ok = np.ones(released.scan.shape[0], dtype=bool)
         store = self._store
         names = ("position_m", "x_mm", "z_mm")
-        steps = np.arange(1, NEIGHBOURS + 1)
         for number in np.unique(wire[candidate]).tolist():  # one step per wire
             mine = np.flatnonzero(wire == number)
             own = [t for t, track in tracks.items() if track.wire == number]
@@ -1139,12 +1138,13 @@ class WireTracker:
                 for old, n in zip(behind, names, strict=True)
             )
             rows = behind[0].shape[0] + np.arange(mine.shape[0])
-            sides = [_neighbours(p, rows, rows[:, None] + sign * steps) for sign in (-1, 1)]
-            check = (sides[0].sum(axis=1) >= 2) & (sides[1].sum(axis=1) >= 2) & candidate[mine]
+            sides = [_side(p, rows, sign) for sign in (-1, 1)]
+            check = candidate[mine] & np.all([near.sum(axis=1) >= 2 for _, near in sides], 0)
             if check.any():
                 at = rows[check]
-                before = _side_medians(sides[0][check], at, -1, p, x, z)
-                after = _side_medians(sides[1][check], at, 1, p, x, z)
+                before, after = (
+                    _side_medians(index[check], near[check], p, x, z) for index, near in sides
+                )
                 span = np.where(after[0] > before[0], after[0] - before[0], 1.0)
                 t = np.clip((p[at] - before[0]) / span, 0.0, 1.0)
                 off = np.zeros(at.shape[0], dtype=bool)
@@ -1203,39 +1203,30 @@ class WireTracker:
                 del book[track_id]
 
 
-def _neighbours(p: FloatArray, rows: IntArray, index: IntArray) -> NDArray[np.bool_]:
-    """Which of the candidate neighbours ``index`` ``(m, k)`` of each row ``(m,)`` exist and
-    lie within ``NEIGHBOUR_M`` of it along the track (``p``: positions in order)."""
-    inside = (index >= 0) & (index < p.shape[0])
-    near = np.abs(p[np.clip(index, 0, p.shape[0] - 1)] - p[rows][:, None]) <= NEIGHBOUR_M
-    return np.asarray(inside & near, dtype=bool)
+def _side(p: FloatArray, rows: IntArray, sign: int) -> tuple[IntArray, NDArray[np.bool_]]:
+    """Each row's ``NEIGHBOURS`` neighbours on one side (``sign``: -1 before, 1 after):
+    their indices into ``p`` (positions in order, clipped to it) ``(m, NEIGHBOURS)``, and
+    which of them exist and lie within ``NEIGHBOUR_M`` of the row along the track."""
+    wanted = rows[:, None] + sign * np.arange(1, NEIGHBOURS + 1)
+    index = np.clip(wanted, 0, p.shape[0] - 1)
+    near = (wanted == index) & (np.abs(p[index] - p[rows][:, None]) <= NEIGHBOUR_M)
+    return index, near
 
 
 def _side_medians(
-    near: NDArray[np.bool_], rows: IntArray, sign: int, p: FloatArray, x: FloatArray, z: FloatArray
+    index: IntArray, near: NDArray[np.bool_], p: FloatArray, x: FloatArray, z: FloatArray
 ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
-    """Median position, ``x`` and ``z`` of each row's neighbours on one side (``sign``: -1
-    before, 1 after; ``near`` ``(m, NEIGHBOURS)`` which exist), and the median absolute
-    deviation of their ``x`` and of their ``z`` about their medians (half of it each: the
-    two sides' halves add up to about the pooled deviation)."""
-    index = np.clip(rows[:, None] + sign * np.arange(1, NEIGHBOURS + 1), 0, p.shape[0] - 1)
+    """Median position, ``x`` and ``z`` of each row's neighbours on one side (``index``,
+    ``near``: :func:`_side`), and the median absolute deviation of their ``x`` and of their
+    ``z`` about their medians (half of it each: the two sides' halves add up to about the
+    pooled deviation)."""
     values = [np.where(near, v[index], np.nan) for v in (p, x, z)]
-    medians = [_row_median(v) for v in values]
+    medians = [row_median(v) for v in values]
     deviations = [
-        0.5 * _row_median(np.abs(v - m[:, None]))
+        0.5 * row_median(np.abs(v - m[:, None]))
         for v, m in zip(values[1:], medians[1:], strict=True)
     ]
     return medians[0], medians[1], medians[2], deviations[0], deviations[1]
-
-
-def _row_median(values: FloatArray) -> FloatArray:
-    """Median of each row of ``values`` ``(m, k)`` over its finite entries (NaN: none; every
-    row has one at least): a sort of a few columns, quicker than ``np.nanmedian``."""
-    ordered = np.sort(values, axis=1)  # NaN last
-    count = np.isfinite(values).sum(axis=1)
-    low = np.take_along_axis(ordered, ((count - 1) // 2)[:, None], axis=1)[:, 0]
-    high = np.take_along_axis(ordered, (count // 2)[:, None], axis=1)[:, 0]
-    return np.asarray(0.5 * (low + high), dtype=float)
 
 
 def _window_count(rows: NDArray[np.bool_], first: IntArray, last: IntArray) -> IntArray:

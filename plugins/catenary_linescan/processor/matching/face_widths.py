@@ -8,12 +8,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from catenary.arrays import FloatArray, IntArray
+from catenary.arrays import FloatArray, IntArray, row_median
 from catenary_linescan.calibration import ResolutionTable
 from catenary_linescan.camera import LineScanCamera
 
 from .candidates import Candidates
-from .geometry import _gather, _Geometry, _line_coefficients, _row_median, _undistort
+from .geometry import _gather, _Geometry, _line_coefficients, _undistort
 from .triangulate import Matches
 
 
@@ -132,7 +132,7 @@ def face_widths_mm(
             ratio[rows, c] = width / (table.at(x_c, z_c) * width_px)
         _, du_dx, _ = geometry.project(x_c, z_c)
         resolution[rows, c] = 1.0 / np.abs(du_dx)  # ideal model: enough for a weight
-    median = _row_median(per_camera)
+    median = row_median(per_camera)
     with np.errstate(invalid="ignore", divide="ignore"):
         agree = np.abs(per_camera - median[:, np.newaxis]) <= tolerance_mm
         weight = np.where(agree, 1.0 / resolution**2, 0.0)
@@ -193,5 +193,5 @@ def lit_chord_mm(
         along = np.abs(du_dx * np.cos(phi) + du_dz * np.sin(phi))  # px per mm
         with np.errstate(invalid="ignore", divide="ignore"):
             per_camera[:, c] = (right[:, c] - left[:, c]) / along
-    chord[rows] = _row_median(per_camera)
+    chord[rows] = row_median(per_camera)
     return chord

@@ -115,13 +115,3 @@ def _gather(scan: IntArray, slot: IntArray, *values: FloatArray) -> list[FloatAr
         gathered[missing] = np.nan
         out.append(gathered)
     return out
-
-
-def _row_median(values: FloatArray) -> FloatArray:
-    """Median of the finite values of each row of a narrow ``(m, C)`` array (NaN if none)."""
-    ordered = np.sort(np.where(np.isfinite(values), values, np.inf), axis=1)
-    count = np.isfinite(values).sum(axis=1)
-    low = np.take_along_axis(ordered, np.maximum((count - 1) // 2, 0)[:, np.newaxis], 1)[:, 0]
-    high = np.take_along_axis(ordered, np.maximum(count // 2, 0)[:, np.newaxis], 1)[:, 0]
-    with np.errstate(invalid="ignore"):
-        return np.where(count > 0, 0.5 * (low + high), np.nan)

@@ -8,13 +8,13 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from catenary.arrays import BoolArray, FloatArray, IntArray
+from catenary.arrays import BoolArray, FloatArray, IntArray, row_median
 from catenary_linescan.camera import LineScanCamera
 from catenary_linescan.triangulation import TriangulationResult, triangulate
 
 from .candidates import Candidates
 from .config import MatchConfig
-from .geometry import _gather, _Geometry, _pinhole, _row_median, _undistort
+from .geometry import _gather, _Geometry, _pinhole, _undistort
 
 
 @dataclass(frozen=True, eq=False)
@@ -128,7 +128,7 @@ def _bare_silhouettes(
         px_per_mm[:, c] = np.hypot(du_dx, du_dz)  # across the ray: u is constant along it
     with np.errstate(invalid="ignore", divide="ignore"):
         width_mm = (right_px - left_px) / px_per_mm
-        own_mm = (1.0 + _PROFILE_SPREAD) * _row_median(width_mm)
+        own_mm = (1.0 + _PROFILE_SPREAD) * row_median(width_mm)
         limit_mm = np.fmin(own_mm, max_width_mm)[:, np.newaxis]
         return width_mm <= limit_mm + _SILHOUETTE_SLACK_PX / px_per_mm
 
