@@ -449,18 +449,21 @@ def silhouette(
     face: float,
     width: int = 1024,
     sky: float | np.ndarray = 110.0,
+    blur: float = 1.0,
 ) -> np.ndarray:
     """A dark wire (level 12) on a bright sky (``sky``: 110, or a level per pixel) with a flat
     face of level ``face`` between ``face_left`` and ``face_right`` (no face when they are
-    equal), pixel-integrated after a Gaussian blur of 1 px: a white-daylight line."""
+    equal), pixel-integrated after a Gaussian blur of ``blur`` px: a white-daylight line."""
     from scipy.special import erf
 
     u = np.arange(width, dtype=np.float64)
 
     def coverage(a: float, b: float) -> np.ndarray:
         def integral(x: np.ndarray, e: float) -> np.ndarray:
-            z = x - e
-            return z * 0.5 * (1 + erf(z / np.sqrt(2))) + np.exp(-z * z / 2) / np.sqrt(2 * np.pi)
+            z = (x - e) / blur
+            return blur * (
+                z * 0.5 * (1 + erf(z / np.sqrt(2))) + np.exp(-z * z / 2) / np.sqrt(2 * np.pi)
+            )
 
         return (
             integral(u + 0.5, a)
@@ -509,6 +512,56 @@ def test_a_face_near_both_of_its_silhouettes_in_white_daylight() -> None:
     edges = np.concatenate([f.face_left_px - (502.0 + phases), f.face_right_px - (517.0 + phases)])
     assert np.sqrt(np.mean(edges**2)) < 0.2
     assert abs(np.mean(f.face_width_px) - 15.0) < 0.1
+
+
+@pytest.mark.parametrize("face", [50.0, 80.0])
+def test_a_face_between_blurred_silhouette_edges_on_a_fine_rig(face: float) -> None:
+    """White daylight on a 16,384-px rig: the silhouette's edges are blurred over several
+    pixels, and their steps (dark side to sky) are larger than the face's (dark side to
+    face). Their ramps reach further inside the wire than the face search's guard, and the
+    search took them for the face's edges: no face on most of such a rig's lines (the
+    sweep's scenes 18, 20 and 47 read worn wire as new, 0.3-1.2 mm of thickness RMS)."""
+    phases = np.linspace(0.0, 1.0, 16, endpoint=False)
+    lines = np.stack(
+        [
+            silhouette(990 + p, 1110 + p, 1030 + p, 1078.4 + p, face, width=2048, blur=3.3)
+            for p in phases
+        ]
+    )
+    config = FeatureConfig.from_resolution((10.6, 14.8), (0.06, 0.18))
+    f = extract_features(np.rint(lines * 200.0).astype(np.uint16), 16, config=config)
+    np.testing.assert_array_equal(f.scan, np.arange(phases.shape[0]))
+    assert np.all(f.has_face)
+    np.testing.assert_allclose(f.face_left_px, 1030 + phases, atol=0.05)
+    np.testing.assert_allclose(f.face_right_px, 1078.4 + phases, atol=0.05)
+    # with shot and read noise, 8 bits: the edges' centroids wander by about 0.2 px under
+    # this blur (0.01-0.04 mm at 0.06-0.18 mm/px)
+    f = extract_features(with_noise(lines), 8, config=config)
+    np.testing.assert_array_equal(f.scan, np.arange(phases.shape[0]))
+    assert np.count_nonzero(f.has_face) >= 14
+    face = f.has_face
+    edges = np.concatenate(
+        [
+            f.face_left_px[face] - (1030 + phases[face]),
+            f.face_right_px[face] - (1078.4 + phases[face]),
+        ]
+    )
+    assert np.sqrt(np.mean(edges**2)) < 0.25
+
+
+def test_an_unworn_wire_on_a_fine_rig_has_no_face() -> None:
+    """The same blurred silhouette without a face: its edges' ramps are not a face."""
+    phases = np.linspace(0.0, 1.0, 16, endpoint=False)
+    lines = np.stack(
+        [silhouette(990 + p, 1110 + p, 0, 0, 12.0, width=2048, blur=3.3) for p in phases]
+    )
+    config = FeatureConfig.from_resolution((10.6, 14.8), (0.06, 0.18))
+    for found in (
+        extract_features(np.rint(lines * 200.0).astype(np.uint16), 16, config=config),
+        extract_features(with_noise(lines), 8, config=config),
+    ):
+        np.testing.assert_array_equal(found.scan, np.arange(phases.shape[0]))
+        assert not np.any(found.has_face)
 
 
 def with_noise(lines: np.ndarray, seed: int = 5) -> np.ndarray:

@@ -49,9 +49,12 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
 4. **Wear face** (step 3). The worn face is brighter than the wire's round sides in every
    lighting, so its edges are the strongest rising and falling first differences inside the
    wire (the zero crossings of the second difference). For a bright object they are
-   searched over the whole wire; for a dark silhouette inside its boundaries, and a face
-   that reaches the silhouette on one side (the wire is as bright as the face, not as dark
-   as its sides, just inside it) takes that boundary's edge. An edge must be significant
+   searched over the whole wire; for a dark silhouette inside its boundaries, clear of
+   their blurred ramps (a blur of several pixels carries the larger step, from the dark side
+   to the sky, well inside the wire: the rising edge is searched before the right
+   boundary's ramp, the falling one after the left's), and a face that reaches the
+   silhouette on one side (the wire is as bright as the face, not as dark as its sides,
+   just inside it, past the ramp) takes that boundary's edge. An edge must be significant
    (``face_k`` noise deviations) and sharp: its first-difference peak falls by three
    quarters ``sharp_px`` away on both sides, which a blurred step does and the smooth
    shading of a round, unworn wire does not (a new wire has no face). The blur that sets
@@ -1327,7 +1330,9 @@ def _kept_wires(
 class _FaceEdges:
     """The strongest rising and falling first difference inside each wire, ``(s,)`` each:
     where (``rise_k``, ``fall_k``), whether significant and sharp, and sub-pixel [window px];
-    ``window``: the centroid's half-width [px] (0: the log-parabola's vertex, :func:`_edge`)."""
+    ``window``: the centroid's half-width [px] (0: the log-parabola's vertex, :func:`_edge`);
+    ``inner_left``, ``inner_right``: a dark silhouette's first pixels inside the ramps of its
+    left and right boundaries [window px]."""
 
     rise_k: IndexArray
     fall_k: IndexArray
@@ -1336,6 +1341,8 @@ class _FaceEdges:
     left: FloatArray
     right: FloatArray
     window: int
+    inner_left: IndexArray
+    inner_right: IndexArray
 
 
 def _face_edges(wires: _Wires, cfg: FeatureConfig) -> _FaceEdges:
@@ -1352,11 +1359,12 @@ def _face_edges(wires: _Wires, cfg: FeatureConfig) -> _FaceEdges:
     offsets = np.arange(wide, dtype=np.int16)[None, :]
     at = np.clip(zone_lo, 0, stride - wide)
     dz = _rows(d4, at, wide)
-    dz *= (offsets >= (zone_lo - at).astype(np.int16)[:, None]) & (
-        offsets <= (zone_hi - at).astype(np.int16)[:, None]
-    )
-    k1 = at + np.argmax(dz, axis=1)
-    k2 = at + np.argmin(dz, axis=1)
+    first = (zone_lo - at).astype(np.int16)[:, None]
+    last = (zone_hi - at).astype(np.int16)[:, None]
+    dz *= (offsets >= first) & (offsets <= last)
+    rise_dz, fall_dz, rise_end, fall_start = _clear_of_ramps(dz, offsets, first, last, wires)
+    k1 = at + np.argmax(rise_dz, axis=1)
+    k2 = at + np.argmin(fall_dz, axis=1)
     rows = np.arange(ms)
     sign2 = np.repeat(np.array([1.0, -1.0], dtype=np.float32), ms)
     reach = cfg.sharp_px
@@ -1365,11 +1373,45 @@ def _face_edges(wires: _Wires, cfg: FeatureConfig) -> _FaceEdges:
     again = np.flatnonzero(rise_ok & (k2 <= k1))
     if again.shape[0]:
         later = offsets > (k1[again] - at[again])[:, None]
-        k2[again] = at[again] + np.argmin(dz[again] * later, axis=1)
+        k2[again] = at[again] + np.argmin(fall_dz[again] * later, axis=1)
     fall_ok = _sharp(d4, rows, k2, sign2[ms:], wires.t_face, reach) & (~rise_ok | (k2 > k1))
     window = cfg.sharp_px if cfg.sharp_px > _PEAKED_PX else 0
     both = _edge(d4, np.tile(rows, 2), np.concatenate([k1, k2]), sign2, window)
-    return _FaceEdges(k1, k2, rise_ok, fall_ok, both[:ms], both[ms:], window)
+    # past the ramps where they reach into the zone, else just inside the guard
+    inner_left = np.where(fall_start[:, 0] > first[:, 0], at + fall_start[:, 0], lb + _GUARD_PX)
+    inner_right = np.where(rise_end[:, 0] < last[:, 0], at + rise_end[:, 0], rb - _GUARD_PX)
+    return _FaceEdges(
+        k1, k2, rise_ok, fall_ok, both[:ms], both[ms:], window, inner_left, inner_right
+    )
+
+
+def _clear_of_ramps(
+    dz: NDArray[np.float32],
+    offsets: NDArray[np.int16],
+    first: NDArray[np.int16],
+    last: NDArray[np.int16],
+    wires: _Wires,
+) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.int16], NDArray[np.int16]]:
+    """The face search's first differences ``dz`` ``(s, wide)`` (zone ``[first, last]``,
+    ``(s, 1)`` each) for the rising edge and for the falling one, and where the right
+    boundary's ramp begins and the left one's ends (``(s, 1)``, zone offsets): a dark silhouette's
+    boundaries are blurred steps whose ramps reach inside it further than ``_GUARD_PX``
+    where the blur spreads over several pixels (16,384-px lines), and the step from the
+    dark side to the sky is larger than the one to the face. The rising edge is searched
+    before the right boundary's ramp (the run of significant rises that reaches the zone's
+    end), the falling edge after the left boundary's; a face that reaches the silhouette is
+    one-sided and takes the boundary's edge (:func:`_one_sided_faces`)."""
+    if not np.any(wires.dark):
+        return dz, dz, last, first
+    dark = wires.dark[:, None]
+    t = wires.t_face[:, None]
+    calm = (dz <= t) & (offsets <= last)
+    rise_end = np.where(calm, offsets, -1).max(axis=1, keepdims=True)
+    calm = (dz >= -t) & (offsets >= first)
+    fall_start = np.where(calm, offsets, offsets.shape[1]).min(axis=1, keepdims=True)
+    rise_dz = np.where(dark & (offsets > rise_end), np.float32(0.0), dz)
+    fall_dz = np.where(dark & (offsets < fall_start), np.float32(0.0), dz)
+    return rise_dz, fall_dz, rise_end, fall_start
 
 
 @dataclass(frozen=True)
@@ -1406,7 +1448,9 @@ def _one_sided_faces(wires: _Wires, edges: _FaceEdges, cfg: FeatureConfig) -> _F
             _take(xs_one, np.clip(edge_k + np.where(rising, 2, -1), 0, top_k)),
             _take(xs_one, np.clip(edge_k + np.where(rising, 3, -2), 0, top_k)),
         )
-        inner = _take(xs_one, np.clip(np.where(rising, rb - 3, lb + 3), 0, top_k))
+        # the wire just inside the boundary, past its blurred ramp
+        inner_k = np.where(rising, edges.inner_right[one], edges.inner_left[one])
+        inner = _take(xs_one, np.clip(inner_k, 0, top_k))
         reaches = inner - darkest > 0.5 * (face_level - darkest)
         d_one = wires.d4[one]
         kb = np.where(
