@@ -1401,16 +1401,18 @@ def _clear_of_ramps(
     before the right boundary's ramp (the run of significant rises that reaches the zone's
     end), the falling edge after the left boundary's; a face that reaches the silhouette is
     one-sided and takes the boundary's edge (:func:`_one_sided_faces`)."""
-    if not np.any(wires.dark):
-        return dz, dz, last, first
-    dark = wires.dark[:, None]
-    t = wires.t_face[:, None]
-    calm = (dz <= t) & (offsets <= last)
-    rise_end = np.where(calm, offsets, -1).max(axis=1, keepdims=True)
-    calm = (dz >= -t) & (offsets >= first)
-    fall_start = np.where(calm, offsets, offsets.shape[1]).min(axis=1, keepdims=True)
-    rise_dz = np.where(dark & (offsets > rise_end), np.float32(0.0), dz)
-    fall_dz = np.where(dark & (offsets < fall_start), np.float32(0.0), dz)
+    rise_end, fall_start = last.copy(), first.copy()
+    dark = np.flatnonzero(wires.dark)
+    if dark.shape[0] == 0:
+        return dz, dz, rise_end, fall_start
+    d, t = dz[dark], wires.t_face[dark, None]
+    calm = (d <= t) & (offsets <= last[dark])
+    rise_end[dark] = np.where(calm, offsets, -1).max(axis=1, keepdims=True)
+    calm = (d >= -t) & (offsets >= first[dark])
+    fall_start[dark] = np.where(calm, offsets, offsets.shape[1]).min(axis=1, keepdims=True)
+    rise_dz, fall_dz = dz.copy(), dz.copy()
+    rise_dz[dark] = np.where(offsets > rise_end[dark], np.float32(0.0), d)
+    fall_dz[dark] = np.where(offsets < fall_start[dark], np.float32(0.0), d)
     return rise_dz, fall_dz, rise_end, fall_start
 
 
