@@ -34,6 +34,7 @@ wires apart). A metric with no value (no row measured) fails its target.
     .venv/bin/python benchmarks/sweep.py --out sweep.csv           # 60 scenes, 2 processes
     .venv/bin/python benchmarks/sweep.py --seed 3 --scene 17       # one scene of the draw
     .venv/bin/python benchmarks/sweep.py --scenes 6 --jobs 1 --length-m 50 80
+    .venv/bin/python benchmarks/sweep.py --scene 8 --cameras      # each camera's features
 """
 
 from __future__ import annotations
@@ -55,6 +56,9 @@ from typing import Any
 import numpy as np
 from accuracy import build_simulation, calibrated_rig, measure
 
+from catenary.arrays import BoolArray, FloatArray
+from catenary_linescan.processor.features import extract_features
+from catenary_linescan.processor.stereo import LineScanProcessor
 from catenary_linescan.simulator.rigs import PIXEL_PITCH_UM, generate_rig
 from catenary_wiretypes import load_profiles
 
@@ -274,6 +278,113 @@ def run_scenario(scenario: Scenario, scans: tuple[int, int] | None = None) -> di
     return judge(row, scenario)
 
 
+def camera_report(
+    scenario: Scenario, scans: tuple[int, int] | None = None
+) -> dict[str, dict[str, float]]:
+    """Each camera's features of the scene's running contact wires against where the
+    simulator drew them in that camera (the diagnosis of a scene that fails): per camera,
+    ``in_view`` (scans x wires), ``found`` (share with a candidate whose middle lies within
+    the true silhouette), ``width_px`` (median true silhouette), ``left_p50``, ``left_p90``,
+    ``right_p50``, ``right_p90`` (absolute errors of the found candidates' silhouette edges
+    [px]: at night those of the wire's lit part), ``faces`` (of those, how many show a face
+    wider than 1 px), ``faces_found`` (share of them whose candidate has a face) and
+    ``face_p50``, ``face_p95`` (absolute errors of the face edges [px])."""
+    settings = scenario.settings()
+    with tempfile.TemporaryDirectory() as tmp:
+        rig = calibrated_rig(Path(tmp), settings["rig"])
+    sim = build_simulation(settings, scenario.scene_params())
+    stage = LineScanProcessor(rig).stage
+    contact = np.flatnonzero([wire.contact for wire in sim.scene.wires])
+    bit_depth = {c.name: c.bit_depth for c in sim.rig.cameras}
+    first, stop = 0, sim.chunk_count
+    if scans is not None:
+        first, stop = scans[0] // sim.chunk_scans, min(-(-scans[1] // sim.chunk_scans), stop)
+    parts: dict[str, list[FloatArray]] = {name: [] for name in stage.names}
+    for chunk in map(sim.chunk, range(first, stop)):
+        for name in stage.names:
+            found = extract_features(chunk.lines[name], bit_depth[name], config=stage.features)
+            truth = chunk.truth.cameras[name]
+            for j in contact:
+                running = chunk.truth.running[:, j]
+                parts[name].append(_nearest_candidates(found, truth, int(j), running))
+    report = {}
+    for name, blocks in parts.items():
+        half, centre, left, right, face_true, face_found, face_l, face_r = np.concatenate(
+            blocks, axis=1
+        )
+        found = np.abs(centre) < half
+        faces = found & (face_true > 0)
+        face_errors = np.abs(np.concatenate([face_l[faces], face_r[faces]]))
+        face_errors = face_errors[np.isfinite(face_errors)]
+
+        def quantile(values: FloatArray, q: float) -> float:
+            values = np.abs(values)
+            return float(np.percentile(values, q)) if values.shape[0] else math.nan
+
+        report[name] = {
+            "in_view": float(half.shape[0]),
+            "found": float(np.mean(found)) if half.shape[0] else math.nan,
+            "width_px": float(np.median(2.0 * half)) if half.shape[0] else math.nan,
+            "left_p50": quantile(left[found], 50),
+            "left_p90": quantile(left[found], 90),
+            "right_p50": quantile(right[found], 50),
+            "right_p90": quantile(right[found], 90),
+            "faces": float(np.count_nonzero(faces)),
+            "faces_found": float(np.mean(face_found[faces])) if np.any(faces) else math.nan,
+            "face_p50": quantile(face_errors, 50),
+            "face_p95": quantile(face_errors, 95),
+        }
+    return report
+
+
+def _nearest_candidates(found: Any, truth: Any, wire: int, running: BoolArray) -> FloatArray:
+    """For the scans where contact wire ``wire`` runs and shows in the camera, the candidate
+    whose middle is nearest the true silhouette's: ``(8, r)``, the true half-width and the
+    errors of the middle, the left and right edges, whether the truth has a face wider than
+    1 px and the candidate one, and the errors of the face edges [px] (NaN: no face)."""
+    left, right = truth.left_px[:, wire], truth.right_px[:, wire]
+    rows = np.flatnonzero(running & np.isfinite(left) & np.isfinite(right))
+    middle = 0.5 * (left + right)
+    nearest = np.full(left.shape[0], -1)
+    if len(found):
+        distance = np.abs(found.wire_centre_px - middle[found.scan])
+        order = np.lexsort((distance, found.scan))
+        scans, first = np.unique(found.scan[order], return_index=True)
+        nearest[scans] = order[first]
+    pick = nearest[rows]
+    has = pick >= 0
+    nan = np.full(rows.shape[0], np.nan)
+
+    def error(values: FloatArray, true: FloatArray) -> FloatArray:
+        return np.where(has, values[np.maximum(pick, 0)] - true[rows], nan)
+
+    true_face = truth.face_right_px[rows, wire] - truth.face_left_px[rows, wire] > 1.0
+    return np.stack(
+        [
+            0.5 * (right - left)[rows],
+            np.where(has, found.wire_centre_px[np.maximum(pick, 0)] - middle[rows], np.inf),
+            error(found.left_px, left),
+            error(found.right_px, right),
+            true_face.astype(np.float64),
+            (has & np.isfinite(found.face_left_px[np.maximum(pick, 0)])).astype(np.float64),
+            error(found.face_left_px, truth.face_left_px[:, wire]),
+            error(found.face_right_px, truth.face_right_px[:, wire]),
+        ]
+    )
+
+
+def camera_lines(report: dict[str, dict[str, float]]) -> list[str]:
+    """:func:`camera_report` as text, a line per camera."""
+    return [
+        f"{name}: contact wire in view {r['in_view']:.0f} times, found {100 * r['found']:.1f} %"
+        f" (width {r['width_px']:.1f} px); edges |error| px left {r['left_p50']:.2f}/"
+        f"{r['left_p90']:.2f}, right {r['right_p50']:.2f}/{r['right_p90']:.2f} (p50/p90); "
+        f"faces {r['faces']:.0f}, found {100 * r['faces_found']:.1f} %, edges |error| px "
+        f"{r['face_p50']:.2f}/{r['face_p95']:.2f} (p50/p95)"
+        for name, r in report.items()
+    ]
+
+
 def judge(row: dict[str, Any], scenario: Scenario) -> dict[str, Any]:
     """Add ``ok_<target>`` (1 met, 0 failed, empty: not judged) and ``fails`` to a row; a
     metric without a value (no rows, or the scene failed) fails its target."""
@@ -414,9 +525,22 @@ def main(argv: list[str] | None = None) -> int:
         metavar=("FIRST", "STOP"),
         help="with --scene: only the stretch of the run that holds these scans",
     )
+    parser.add_argument(
+        "--cameras",
+        action="store_true",
+        help="with --scene: each camera's features against the truth (no scoring)",
+    )
     args = parser.parse_args(argv)
     if args.scans is not None and args.scene is None:
         parser.error("--scans needs --scene")
+    if args.cameras:
+        if args.scene is None:
+            parser.error("--cameras needs --scene")
+        scenario = draw(args.seed, args.scene, tuple(args.length_m))
+        print(scenario)
+        for line in camera_lines(camera_report(scenario, args.scans)):
+            print(line)
+        return 0
     numbers = [args.scene] if args.scene is not None else list(range(args.scenes))
     scenarios = [draw(args.seed, k, tuple(args.length_m)) for k in numbers]
     print(
