@@ -16,6 +16,7 @@ import pytest
 
 from catenary_linescan.calibration import resolution_table_from_camera
 from catenary_linescan.camera import LineScanCamera
+from catenary_linescan.processor.features import FeatureConfig
 from catenary_linescan.processor.matching import (
     MatchConfig,
     Matches,
@@ -26,6 +27,7 @@ from catenary_linescan.processor.matching import (
     match,
     pad_candidates,
 )
+from catenary_linescan.processor.matching.evidence import unseen_in_lines
 from catenary_linescan.processor.matching.geometry import _Geometry, _undistort
 from catenary_linescan.simulator import DEMO_RIG_PATH, Simulation, load_rig, parse_settings
 from catenary_linescan.simulator.simulation import Chunk
@@ -202,6 +204,43 @@ def test_a_missed_wire_in_one_camera(overlap_chunk, rig_cameras) -> None:
     _, distance, contact = truth_of(matches, overlap_chunk, names, cameras)
     assert matches.count == 4 * overlap_chunk.scans
     assert np.max(distance[contact]) < 0.5
+
+
+def test_a_ghost_shows_only_sky_to_the_camera_that_did_not_confirm_it(
+    overlap_chunk, rig_cameras
+) -> None:
+    """Rays of different wires that three cameras pair meet where there is no wire (a
+    ghost): the fourth camera's pixels show sky there (``unseen_in_lines``). A point 300 mm
+    beneath a contact wire and 150 mm aside, given to three cameras, is verified by the
+    matching, and the rendered lines of the fourth speak against it; a contact wire whose
+    candidates the fourth camera lacks is not spoken against: its pixels show the wire."""
+    names, cameras = rig_cameras
+    features, wire_of = features_from_truth(overlap_chunk, names, np.random.default_rng(7))
+    n = overlap_chunk.scans
+    truth = overlap_chunk.truth
+    x, z = truth.x_roof_mm[:, 0] - 150.0, truth.z_roof_mm[:, 0] - 300.0
+    for c in range(3):
+        features[c] = features[c].add(dark_silhouettes(np.arange(n), cameras[c].project(x, z)))
+    features[3] = features[3].drop(np.flatnonzero(wire_of[3] == 2))  # misses contact wire B
+    candidates = pad_candidates(features, n)
+    matches = match(cameras, candidates, sigma())
+    lines = [overlap_chunk.lines[name] for name in names]
+    full = [float(np.iinfo(line.dtype).max) for line in lines]
+    against = unseen_in_lines(
+        cameras, lines, [0] * 4, full, candidates, matches, 14.8, FeatureConfig()
+    )
+    at_ghost = np.hypot(matches.x_mm - x[matches.scan], matches.z_mm - z[matches.scan]) < 5.0
+    on_wire_b = (
+        np.hypot(
+            matches.x_mm - truth.x_roof_mm[matches.scan, 2],
+            matches.z_mm - truth.z_roof_mm[matches.scan, 2],
+        )
+        < 1.0
+    )
+    assert np.count_nonzero(at_ghost) == n and np.all(matches.verified[at_ghost])
+    assert np.all(against[at_ghost])
+    assert np.count_nonzero(on_wire_b) == n and np.all(matches.slot[on_wire_b, 3] < 0)
+    assert not np.any(against[~at_ghost])
 
 
 def test_two_views_cannot_be_verified(overlap_chunk, rig_cameras) -> None:

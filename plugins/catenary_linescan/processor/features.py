@@ -119,7 +119,7 @@ from numpy.typing import NDArray
 
 from catenary.arrays import FloatArray, IndexArray
 
-__all__ = ["FeatureConfig", "LineFeatures", "extract_features"]
+__all__ = ["FeatureConfig", "LineFeatures", "extract_features", "noise_sigma"]
 
 
 _GROUP_BYTES = 1 << 22
@@ -416,7 +416,7 @@ def extract_features(
 # -- the coarse pass: noise, bins, background, detection ------------------------------------
 
 
-def _noise_sigma(data: np.ndarray, samples: int, floor: float) -> NDArray[np.float32]:
+def noise_sigma(data: np.ndarray, samples: int, floor: float) -> NDArray[np.float32]:
     """Pixel noise [DN] ``(r,)`` of each line: MAD of the first difference (grouped median)."""
     width = data.shape[1]
     step = max(1, (width - 1) // samples)
@@ -1608,7 +1608,7 @@ def _zone_argmax(values: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> IndexArr
 def _extract_group(data: np.ndarray, bit_depth: int, cfg: FeatureConfig) -> LineFeatures:
     """Features of a group of rows (every step per line; see :func:`extract_features`)."""
     full = float((1 << bit_depth) - 1)
-    sigma = _noise_sigma(data, cfg.noise_samples, cfg.noise_floor_lsb)  # (r,)
+    sigma = noise_sigma(data, cfg.noise_samples, cfg.noise_floor_lsb)  # (r,)
     sums = _bin_sums(data, cfg.bin_px)
     cand = _candidates(_detect(sums, sigma, cfg), data, sums, sigma, cfg)
     if cand[0].shape[0] == 0:

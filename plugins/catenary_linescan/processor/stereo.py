@@ -5,7 +5,10 @@ The paper's processing module (section 3.3, figure 11, steps 2-3, and section 3.
 
 1. profile features of every camera's lines (:mod:`.features`);
 2. stereo matching across the cameras and triangulation of the confirmed points
-   (:mod:`.matching`), with the worn face's width in mm from every confirming camera;
+   (:mod:`.matching`), with the worn face's width in mm from every confirming camera; a
+   point is left unverified where a camera that did not confirm it shows only sky in its
+   line there (a ghost: :mod:`.matching.evidence`), so that it can continue a tracked
+   wire, never start one;
 3. wire selection along the run (:mod:`.tracking`): messengers out by height, droppers and
    steady arms out by continuity, one wire number per contact wire.
 
@@ -75,6 +78,7 @@ from .matching import (
     match,
     pad_candidates,
 )
+from .matching.evidence import unseen_in_lines
 from .tracking import TrackedPoints, TrackingConfig, WireTracker
 
 __all__ = [
@@ -459,6 +463,18 @@ class LineScanStage:
         candidates = pad_candidates(features, n, self.matching.max_candidates, offsets)
         cameras = list(self.cameras)
         matches = match(cameras, candidates, self.sigma_px, self.matching)
+        full = [float((1 << block.cameras[name].bit_depth) - 1) for name in self.names]
+        unseen = unseen_in_lines(
+            cameras,
+            [block.cameras[name].lines for name in self.names],
+            offsets,
+            full,
+            candidates,
+            matches,
+            self.max_width_mm,
+            self.features,
+        )
+        matches = replace(matches, verified=matches.verified & ~unseen)
         vehicle = block.vehicle
         roll = roll_rad(vehicle.left_mm, vehicle.right_mm, self.baseline_mm)
         roll = np.where(np.isfinite(roll), roll, 0.0)

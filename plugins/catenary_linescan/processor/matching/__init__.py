@@ -59,7 +59,9 @@ precision-weighted mean of the cameras that agree with it).
 Modules, in the order of the steps: :mod:`.candidates` (1), :mod:`.hypotheses` (2-3),
 :mod:`.resolve` (4), :mod:`.triangulate` (5), :mod:`.pipeline` (:func:`match`: the steps in
 order, 6 and 7), :mod:`.face_widths`; :mod:`.config` holds the settings and :mod:`.geometry`
-the cameras' models in arrays that the steps share.
+the cameras' models in arrays that the steps share. :mod:`.evidence` reads the lines' pixels
+where a point would be in the cameras that did not confirm it (the processor leaves a point
+that one of them shows only sky for unverified: a ghost).
 """
 
 from .candidates import Candidates, FeatureTable, camera_sigmas_px, pad_candidates
