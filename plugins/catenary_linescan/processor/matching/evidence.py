@@ -61,13 +61,13 @@ def unseen_in_lines(
         line = lines[c]
         centre = u - offsets_px[c]
         finite = np.isfinite(centre) & np.isfinite(reach)
-        reach = np.where(finite, reach, 0.0)
         # a silhouette of the camera's own within reach: it sees something there (a merged
         # silhouette that supports the point, a neighbour in line); its pixels need no look
         with np.errstate(invalid="ignore"):
             at, near = u[:, np.newaxis], reach[:, np.newaxis]
             lo, hi = candidates.left_px[scan, c, :], candidates.right_px[scan, c, :]
             finite &= ~((lo - near <= at) & (at <= hi + near)).any(axis=1)
+        reach = np.where(finite, reach, 0.0)  # the window: as wide as the rows looked at need
         half = math.ceil(float(reach.max()))
         span = np.arange(-half - SKY_PX, half + SKY_PX + 1)
         start = np.rint(np.where(finite, centre, -1.0)).astype(np.int64)
