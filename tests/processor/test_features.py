@@ -608,6 +608,7 @@ def test_two_wires_with_sky_between_them_stay_two() -> None:
     f = extract_features(with_noise(lines), 8)
     assert len(f) == 2 * phases.shape[0]
     assert not np.any(f.has_face)
+    assert np.all(f.outline_side == 0)  # both boundaries are each wire's outline
     np.testing.assert_allclose(f.left_px[0::2], 500.0 + phases, atol=0.4)
     np.testing.assert_allclose(f.right_px[1::2], 550.0 + phases, atol=0.4)
 
@@ -648,6 +649,51 @@ def test_an_unworn_wire_behind_the_filter_keeps_its_shallow_side() -> None:
     )
     assert np.median(errors) < 0.4
     assert np.max(errors) < 1.2
+
+
+def unworn_lit_from_one_side(left: float, width: float = 60.0, n: int = 1024) -> np.ndarray:
+    """An unworn wire by day behind the band-pass filter, lit from one side, on a dim sky
+    (10 DN of 255): a dark side (3-4 DN) a fifth of the wire wide, rising through the sky's
+    level to its lit bottom (24 DN), then a side as bright as the sky, blurred by 1 px
+    (Gaussian) and pixel-integrated: the shape of the simulator's lines of an 8192-px rig
+    (``sweep.py --scene 8``)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    sub = 16
+    x = (np.arange(n * sub) + 0.5) / sub - 0.5
+    t = (x - left) / width
+    levels = [3.0, 4.0, 9.5, 10.5, 24.0, 14.0, 9.5, 9.5]
+    wire = np.interp(t, [0.0, 0.15, 0.3, 0.45, 0.6, 0.75, 0.9, 1.0], levels)
+    fine = np.where((t >= 0.0) & (t <= 1.0), wire, 10.0)
+    blurred: np.ndarray = gaussian_filter1d(fine, float(sub)).reshape(n, sub).mean(axis=1)
+    return blurred
+
+
+def test_an_unworn_wire_lit_from_one_side_gives_the_edge_of_its_outline() -> None:
+    """Its dark side and its lit bottom are two runs with the sky's level between them, and
+    its other side does not show: the two runs used to be two candidates, each too narrow
+    for a wire (nothing found). They are one wire whose left boundary is its outline and
+    whose right one the end of its lit part (``outline_side``); mirrored, the right."""
+    left = np.array([480.0 + p + 8 * k for k in range(4) for p in np.linspace(0, 1, 16, False)])
+    rng = np.random.default_rng(7)
+    clean = np.stack([unworn_lit_from_one_side(a) for a in left])
+    lines = np.clip(np.rint(clean + rng.normal(0.0, 1.3, clean.shape)), 0, 255).astype(np.uint8)
+    config = FeatureConfig.from_resolution((10.6, 14.8), (0.2, 0.25), outlines=True)
+    without = dataclasses.replace(config, outlines=False)
+    assert len(extract_features(lines, 8, config=without)) == 0
+    for mirrored in (False, True):
+        data = np.ascontiguousarray(lines[:, ::-1]) if mirrored else lines
+        f = extract_features(data, 8, config=config)
+        np.testing.assert_array_equal(f.scan, np.arange(left.shape[0]))
+        assert not np.any(f.has_face)
+        if mirrored:
+            assert np.all(f.outline_side == 1)
+            errors = np.abs(f.right_px - (1023.0 - left))
+        else:
+            assert np.all(f.outline_side == -1)
+            errors = np.abs(f.left_px - left)
+        assert np.median(errors) < 0.5
+        assert np.max(errors) < 2.5
 
 
 def test_cloud_texture_on_the_sky_pixels_does_not_move_a_boundary() -> None:

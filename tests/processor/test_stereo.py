@@ -318,8 +318,10 @@ def test_create_reads_the_rig_and_the_settings(rig: Rig, tmp_path: Path) -> None
             "messenger_gap_mm": 250,
             "min_cameras": 3,
             "wire_width_mm": [10.0, 15.0],
+            "outlines": True,
         },
     )
+    assert processor.stage.features.outlines and not create(path, {}).stage.features.outlines
     assert processor.config.tracking.min_track_m == 0.8
     assert processor.config.tracking.messenger_gap_mm == 250.0
     assert processor.config.matching.min_cameras == 3
@@ -331,6 +333,8 @@ def test_create_reads_the_rig_and_the_settings(rig: Rig, tmp_path: Path) -> None
         create(path, {"min_track_m": -1.0})
     with pytest.raises(UserError, match="max_candidates"):
         create(path, {"max_candidates": 2.5})
+    with pytest.raises(UserError, match="outlines = 1: expected true or false"):
+        create(path, {"outlines": 1})
     with pytest.raises(UserError, match="no such file"):
         create(tmp_path / "missing.toml", {})
 
@@ -491,6 +495,7 @@ def test_a_silhouette_middle_is_lowered_by_its_chord_sagitta() -> None:
         sigma_x_mm=np.zeros(m),
         sigma_z_mm=np.zeros(m),
         verified=np.ones(m, bool),
+        radius_mm=np.full(m, np.nan),
     )
     roll = np.array([0.0, 0.01])
     # the whole wire (or no bright camera), a chord of 8 mm, none, the lit point; tilted;

@@ -9,22 +9,23 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
 2. **Background and candidates** (step 1 of the paper). The line is summed in bins of
    ``bin_px`` pixels, grouped in cells of four bins. The background beside a cell is the
    mean filter of the line over ``background_px`` on either side of it, beyond a guard of
-   one wire width, so that an object (at most a wire wide) never drags its own background.
-   A bin is a candidate when it stands out from the background on both sides, in the same
+   one wire width, so that an object (at most a wire wide) never drags its own background. A
+   bin is a candidate when it stands out from the background on both sides, in the same
    polarity, by ``detect_k`` noise deviations and by ``detect_rel`` of the sky's level:
-   bright wires on a dark sky (night, or by day with the band-pass filter), dark
-   silhouettes on a bright sky (white daylight). Both sides: the sky's gradients are not
-   objects. The bright test uses the mean of the cells' brightest bins, the dark test of
-   their darkest, so that another object in the windows makes detection harder, never
-   easier (the sky between two wires is not an object). Next to a step between
-   neighbouring bins (``edge_rel`` of their level: the first difference at bin scale) half
-   of ``detect_rel`` suffices: an unworn wire by day behind the filter is a silhouette of
-   low mean contrast, while the sky's texture changes far less over one bin. Runs of such
-   bins are candidates (two runs one bin apart when a bright one meets a dark one: a face
-   and its dark sides); runs wider than a wire can be are dropped (registration arms,
+   bright wires on a dark sky (night, or by day with the band-pass filter), dark silhouettes
+   on a bright sky (white daylight). Both sides: the sky's gradients are not objects. The
+   bright test uses the mean of the cells' brightest bins, the dark test of their darkest,
+   so that another object in the windows makes detection harder, never easier (the sky
+   between two wires is not an object). Next to a step between neighbouring bins
+   (``edge_rel`` of their level: the first difference at bin scale) half of ``detect_rel``
+   suffices: an unworn wire by day behind the filter is a silhouette of low mean contrast,
+   while the sky's texture changes far less over one bin. Runs of such bins are candidates
+   (a bright run and a dark one that together span no more than the widest wire are one: a
+   face and its dark sides, or an unworn wire's dark side and its lit bottom with the sky's
+   level between them); runs wider than a wire can be are dropped (registration arms,
    droppers seen along their length, glare). Two dark runs are one candidate too when the
-   undetected run between them is narrower than the widest wire, together they span no
-   more than the widest wire, and it is darker or brighter than the sky beside them: a dark
+   undetected run between them is narrower than the widest wire, together they span no more
+   than the widest wire, and it is darker or brighter than the sky beside them: a dark
    silhouette whose worn face, lit from below, is almost as bright as the sky (white
    daylight), or an unworn wire's lit bottom between its dark sides (behind the filter), not
    two wires with the sky between them (``_dark_joins``). A dark run takes the undetected
@@ -45,7 +46,13 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
    texture: the largest deviation of the sky pixels from the ramp between the two sides,
    capped at ``detect_rel`` of the peak, beyond which it is a neighbour's edge). Candidates
    wider than a wire can be, or narrower and without a face (``wire_width_px``,
-   ``width_tolerance``: the expected width at the measuring range), are dropped.
+   ``width_tolerance``: the expected width at the measuring range), are dropped. A boundary
+   is the wire's outline (it occludes the sky there) when, just inside it (pixels 1 to
+   ``sharp_px // 2``), the line has fallen to half the wire's darkest deviation from the sky,
+   as a blurred step does; the end of a lit part is brighter than the sky inside, and an
+   unworn wire's shading darkens over a good part of the wire. A wire without a face whose
+   outline shows on one side only (``outline_side``: by day behind the filter, lit from one
+   side, its other side as bright as the sky) is located by that edge in the matching.
 4. **Wear face** (step 3). The worn face is brighter than the wire's round sides in every
    lighting, so its edges are the strongest rising and falling first differences inside the
    wire (the zero crossings of the second difference). For a bright object they are
@@ -220,6 +227,14 @@ class FeatureConfig:
         Pixel pairs per line for the noise estimate.
     noise_floor_lsb : float
         Lowest pixel noise assumed [LSB]: quantisation makes lower estimates meaningless.
+    outlines : bool
+        Join a bright and a dark run that together span no more than the widest wire and
+        report which boundary alone is a faceless wire's outline (``outline_side``; module
+        docstring, steps 2-3), which the matching then images at the axis a radius inward.
+        Off by default: on the scenario sweep it raises the recall of unworn wire behind the
+        band-pass filter (README), but it moves the heights of some worn and glared 16k
+        scenes by millimetres, which is not yet understood. Off, runs one bin apart in
+        opposite polarity are joined and ``outline_side`` is 0.
     """
 
     wire_width_px: tuple[float, float] = (10.6 / 0.5, 14.8 / 0.2)
@@ -235,6 +250,7 @@ class FeatureConfig:
     sharp_px: int = 4
     noise_samples: int = 128
     noise_floor_lsb: float = 0.5
+    outlines: bool = False
 
     def __post_init__(self) -> None:
         lo, hi = self.wire_width_px
@@ -321,6 +337,13 @@ class LineFeatures:
         +1 bright object on a darker background, -1 dark silhouette on a brighter one; 0
         when it is as much brighter as darker than the sky in places (an unworn wire by day
         behind the band-pass filter: its lit bottom between dark sides).
+    outline_side : int8
+        Which boundary alone is the wire's outline, for a wire without a face: -1 the left
+        (darker than the sky inside it: the wire's dark side against the sky) where the
+        right is the end of its lit part (brighter than the sky inside it), +1 the right, 0
+        both or neither (the middle of the boundaries is the axis or the lit part's middle).
+        An unworn wire by day behind the band-pass filter, lit from one side, shows one
+        dark side clearly and the other about as bright as the sky.
     """
 
     scan: NDArray[np.int64]
@@ -334,6 +357,7 @@ class LineFeatures:
     face_centre_px: FloatArray
     contrast: FloatArray
     polarity: NDArray[np.int8]
+    outline_side: NDArray[np.int8]
 
     def __len__(self) -> int:
         return int(self.scan.shape[0])
@@ -348,7 +372,9 @@ class LineFeatures:
         """No candidates."""
         values: dict[str, np.ndarray] = {}
         for f in fields(cls):
-            dtype = {"scan": np.int64, "polarity": np.int8}.get(f.name, np.float64)
+            dtype = {"scan": np.int64, "polarity": np.int8, "outline_side": np.int8}.get(
+                f.name, np.float64
+            )
             values[f.name] = np.zeros(0, dtype=dtype)
         return cls(**values)
 
@@ -756,15 +782,21 @@ def _candidates(
     row, start, stop = _runs(detected != 0)
     if row.shape[0] == 0:
         return row, start, stop, start, stop
-    # one candidate: runs of a row one bin apart that end and begin in opposite polarity
-    # (the zero crossing between a bright face and its dark sides by day with the filter)
+    # one candidate: runs of a row that end and begin in opposite polarity within a wire's
+    # width (by day behind the filter: a bright face or lit bottom and its dark sides, the
+    # zero crossing between them undetected, over several bins on an unworn wire's shading)
     flat = detected.ravel()
     width = detected.shape[1]
     end_sign = flat[row * width + stop - 1]
     start_sign = flat[row * width + start]
     same_row = row[1:] == row[:-1]
     new = np.ones(row.shape[0], dtype=bool)
-    new[1:] = ~same_row | (start[1:] - stop[:-1] > 1) | (end_sign[:-1] == start_sign[1:])
+    apart = (
+        (stop[1:] - start[:-1]) * b > cfg.wire_width_px[1] + 2 * b
+        if cfg.outlines
+        else start[1:] - stop[:-1] > 1
+    )
+    new[1:] = ~same_row | apart | (end_sign[:-1] == start_sign[1:])
     # one candidate too: a dark silhouette split at its worn face (white daylight: the face
     # may be almost as bright as the sky, so that it is not detected)
     joined = _dark_joins(data, sums, sigma, cfg, row, start, stop, end_sign, start_sign)
@@ -1049,12 +1081,14 @@ class _Found:
     face_right: FloatArray
     peak_dev: FloatArray
     polarity: NDArray[np.int8]
+    outline_side: NDArray[np.int8]
 
     @classmethod
     def empty(cls) -> _Found:
         ints = np.zeros(0, dtype=np.intp)
         floats = np.zeros(0, dtype=np.float64)
-        return cls(ints, ints, floats, floats, floats, floats, floats, np.zeros(0, np.int8))
+        none = np.zeros(0, np.int8)
+        return cls(ints, ints, floats, floats, floats, floats, floats, none, none)
 
 
 def _fine(
@@ -1086,6 +1120,11 @@ def _fine(
     has_face = fitted.has_face[keep]
     offset = windows.first_px[sel].astype(np.float64)
     nan = np.float64(np.nan)
+    if cfg.outlines:
+        outline_side = _outline_sides(windows, sky, boundaries, sel, cfg)
+        outline_side[has_face] = 0
+    else:
+        outline_side = np.zeros(sel.shape[0], np.int8)
     return _Found(
         row=row[sel],
         start=start[sel],
@@ -1095,6 +1134,7 @@ def _fine(
         face_right=np.where(has_face, fitted.face_right[keep] + offset, nan),
         peak_dev=contrast.peak_dev[sel] / 4.0,
         polarity=np.where(contrast.mixed[sel], 0, contrast.polarity[sel]).astype(np.int8),
+        outline_side=outline_side,
     )
 
 
@@ -1275,6 +1315,43 @@ def _boundaries(
     ok = contrast.strong & ~w.saturated & inside[:m] & inside[m:]
     ok &= (width <= cfg.max_width) & (width > 0)
     return _Boundaries(left, right, ok, width >= cfg.min_width)
+
+
+def _outline_sides(
+    windows: _Windows,
+    sky: _Sky,
+    boundaries: _Boundaries,
+    sel: IndexArray,
+    cfg: FeatureConfig,
+) -> NDArray[np.int8]:
+    """Which boundary alone of candidates ``sel`` ``(s,)`` is the wire's outline (module
+    docstring, step 3): -1 the left, +1 the right, 0 both or neither.
+
+    A boundary is the outline (the wire occludes the sky there) when the line has fallen to
+    half the candidate's darkest deviation from the sky just inside it, as a blurred step
+    does: on average over the pixels 1 to ``sharp_px // 2`` (at least 2) inside. The end of
+    a lit part is brighter than the sky inside; an unworn wire's shading, from a dark side
+    to a lit bottom as bright as the sky, darkens over a good part of the wire."""
+    w = windows
+    inward = np.arange(1, max(2, cfg.sharp_px // 2) + 1)
+    last = (w.own[sel] - 1)[:, np.newaxis]
+    left = np.clip(np.ceil(boundaries.left[sel]).astype(np.intp)[:, np.newaxis] + inward, 0, last)
+    right = np.clip(
+        np.floor(boundaries.right[sel]).astype(np.intp)[:, np.newaxis] - inward, 0, last
+    )
+    base = w.base[sel][:, np.newaxis]
+    ramp0, slope = sky.ramp0[sel][:, np.newaxis], sky.slope[sel][:, np.newaxis]
+    level_l = (w.xs4[base + left] - (ramp0 + slope * left)).mean(axis=1)
+    level_r = (w.xs4[base + right] - (ramp0 + slope * right)).mean(axis=1)
+    # the darkest pixel between the boundaries
+    px = np.arange(w.stride)
+    deviation = w.xs4.reshape(-1, w.stride)[sel] - (ramp0 + slope * px)
+    between = (px >= left[:, :1]) & (px <= right[:, :1])
+    darkest = -np.where(between, deviation, np.inf).min(axis=1)
+    half = np.where(darkest > cfg.boundary_k * w.s4[sel], -0.5 * darkest, -np.inf)
+    outline_l, outline_r = level_l <= half, level_r <= half
+    side = np.where(outline_l & ~outline_r, -1, np.where(outline_r & ~outline_l, 1, 0))
+    return side.astype(np.int8)
 
 
 @dataclass(frozen=True)
@@ -1638,6 +1715,7 @@ def _extract_group(data: np.ndarray, bit_depth: int, cfg: FeatureConfig) -> Line
         face_centre_px=face_centre,
         contrast=np.abs(found.peak_dev).astype(np.float64) / full,
         polarity=found.polarity,
+        outline_side=found.outline_side,
     )
 
 

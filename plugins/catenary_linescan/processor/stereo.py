@@ -42,6 +42,8 @@ the block alone: they are the processor's ``stage`` (:class:`LineScanStage`, pic
 ``max_gap_m``              longest gap a track bridges (1.0)
 ``messenger_gap_mm``       height above the lowest contact wire of a messenger (200)
 ``max_height_mm``          highest a contact wire runs above the roof (3000)
+``outlines``               find a faceless wire's outline on one side only (false: features
+                           module, ``FeatureConfig.outlines``)
 ``width_tolerance_mm``     cameras further than this from the median face width are left out
 ``table_tolerance``        largest relative difference between the camera model's and the
                            look-up table's resolution accepted before a warning (0.03)
@@ -106,6 +108,7 @@ class ProcessorConfig:
     matching: MatchConfig = field(default_factory=MatchConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     wire_width_mm: tuple[float, float] = CONTACT_WIRE_WIDTH_MM
+    outlines: bool = False
     width_tolerance_mm: float = 0.25
     table_tolerance: float = 0.03
 
@@ -131,7 +134,13 @@ class ProcessorConfig:
             "max_height_mm": float,
         }
         own_keys = {"width_tolerance_mm": float, "table_tolerance": float}
-        known = {**matching_keys, **tracking_keys, **own_keys, "wire_width_mm": list}
+        known = {
+            **matching_keys,
+            **tracking_keys,
+            **own_keys,
+            "wire_width_mm": list,
+            "outlines": bool,
+        }
         unknown = sorted(set(settings) - set(known))
         if unknown:
             raise UserError(
@@ -140,6 +149,11 @@ class ProcessorConfig:
         values: dict[str, Any] = {}
         for key, value in settings.items():
             kind = known[key]
+            if kind is bool:
+                if not isinstance(value, bool):
+                    raise UserError(f"processor setting {key} = {value!r}: expected true or false")
+                values[key] = value
+                continue
             if kind is list:
                 try:
                     low, high = (float(v) for v in value)
@@ -163,7 +177,9 @@ class ProcessorConfig:
         tracking = replace(
             TrackingConfig(), **{k: v for k, v in values.items() if k in tracking_keys}
         )
-        own = {k: v for k, v in values.items() if k in own_keys or k == "wire_width_mm"}
+        own = {
+            k: v for k, v in values.items() if k in own_keys or k in ("wire_width_mm", "outlines")
+        }
         return cls(matching=matching, tracking=tracking, **own)
 
 
@@ -232,7 +248,10 @@ class LineScanProcessor:
         )
         self.features = self.config.features or self._feature_config()
         self.matching = replace(
-            self.config.matching, max_wire_width_mm=self.config.wire_width_mm[1]
+            self.config.matching,
+            max_wire_width_mm=self.config.wire_width_mm[1],
+            min_wire_width_mm=self.config.wire_width_mm[0],
+            wire_radius_mm=self.config.wire_radius_mm,
         )
         self._stage = LineScanStage(
             rig_name=rig.vehicle.name,
@@ -257,7 +276,9 @@ class LineScanProcessor:
     def _feature_config(self) -> FeatureConfig:
         fine = min(float(np.min(t.mm_per_px)) for t in self.tables)
         coarse = max(float(np.max(t.mm_per_px)) for t in self.tables)
-        return FeatureConfig.from_resolution(self.config.wire_width_mm, (fine, coarse))
+        return FeatureConfig.from_resolution(
+            self.config.wire_width_mm, (fine, coarse), outlines=self.config.outlines
+        )
 
     @property
     def table_check(self) -> dict[str, float]:
@@ -512,13 +533,15 @@ def contact_from_axis(
 
     The middles of the silhouettes triangulate to the middle of the chord between the
     silhouette's ends. When the whole wire shows (or ``chord_mm`` is NaN) that is the axis,
-    ``radius_mm`` above the lowest point; when only its lit bottom shows, a chord of
+    ``radius_mm`` above the lowest point (the radius measured at the point where it was:
+    ``Matches.radius_mm``); when only its lit bottom shows, a chord of
     ``chord_mm`` lies ``r - sqrt(r² - (chord/2)²)`` above it. The point is lowered by that
     along the track frame's vertical, which the body's roll ``roll_rad`` (per scan of the
     block, shape (n,), positive: left side up) tilts to ``(-sin φ, cos φ)`` in the roof
     frame."""
-    half = np.minimum(0.5 * np.nan_to_num(chord_mm, nan=2.0 * radius_mm), radius_mm)
-    drop = np.where(matches.from_face, 0.0, radius_mm - np.sqrt(radius_mm**2 - half**2))
+    radius = np.where(np.isfinite(matches.radius_mm), matches.radius_mm, radius_mm)
+    half = np.minimum(0.5 * np.where(np.isnan(chord_mm), 2.0 * radius, chord_mm), radius)
+    drop = np.where(matches.from_face, 0.0, radius - np.sqrt(radius**2 - half**2))
     phi = roll_rad[matches.scan]
     return replace(
         matches,

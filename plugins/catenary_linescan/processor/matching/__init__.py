@@ -22,6 +22,9 @@ over the scans of a block:
    derivatives grow when the rays of ``a`` and ``b`` meet at a shallow angle, so a point from
    two close cameras gets the wider window it needs and one from a wide baseline a narrow one.
    Candidates of opposite polarity (bright on dark against dark on bright) never match.
+   A wire whose outline shows on one side only (``Candidates.outline_side``: an unworn
+   wire by day behind the filter, lit from one side) is imaged at its axis a radius inward
+   of that edge, at the resolution where the rays meet, not at its silhouette's middle.
 4. **Resolve** conflicts so that each detection is used once (:func:`.resolve._resolve`): greedy by
    score (cameras confirming first, then the normalised residual), vectorised across the
    scans of the block in rounds; then a point that shared a detection keeps the others when
@@ -38,11 +41,14 @@ over the scans of a block:
    on the rays, then Gauss-Newton on the reprojection error:
    :func:`catenary_linescan.triangulation.triangulate`), from the worn face's midpoints where
    two cameras at least saw the face (the contact point), else from the middles of the
-   wire's silhouettes (its axis), with a leave-one-out check that drops a camera whose image
-   the others do not predict. A camera whose dark silhouette is wider than the widest wire
-   (``max_wire_width_mm``) or than the point's other silhouettes sees a clamp on the wire or
-   objects in line: it gives no axis and only a worn face clear inside it, and a point
-   without two cameras left has no position (a new wire at a dropper clamp).
+   wire's silhouettes (its axis; a radius inward of the one edge of its outline where only
+   one shows, the radius measured in the block where the outline's edges bound the wire
+   from both sides, and steps 2-5 done again with it), with a leave-one-out check that
+   drops a camera whose image the others do not predict. A camera whose dark silhouette is
+   wider than the widest wire (``max_wire_width_mm``) or than the point's other silhouettes
+   sees a clamp on the wire or objects in line: it gives no axis and only a worn face clear
+   inside it, and a point without two cameras left has no position (a new wire at a dropper
+   clamp).
 6. **Two views**: points of two cameras made of the detections left unused, where both saw a
    face, are returned unverified (``Matches.verified``): tracking takes them only where they
    continue a wire it follows (a blind camera and a missed detection at once).

@@ -17,7 +17,9 @@ class FeatureTable(Protocol):
     """One camera's profile features for a block of scans, flattened: fields shape (m,).
 
     ``scan`` is the scan's index within the block; pixel positions follow FORMATS.md.
-    ``polarity`` is +1 for a candidate brighter than its background, -1 darker, 0 unknown.
+    ``polarity`` is +1 for a candidate brighter than its background, -1 darker, 0 unknown;
+    ``outline_side`` -1 or +1 where only the left or the right boundary is the wire's outline
+    (``LineFeatures.outline_side``), else 0.
     """
 
     @property
@@ -36,6 +38,8 @@ class FeatureTable(Protocol):
     def contrast(self) -> FloatArray: ...
     @property
     def polarity(self) -> NDArray[np.integer]: ...
+    @property
+    def outline_side(self) -> NDArray[np.integer]: ...
 
 
 @dataclass(frozen=True, eq=False)
@@ -52,6 +56,7 @@ class Candidates:
     face_right_px: FloatArray
     contrast: FloatArray
     polarity: NDArray[np.int8]
+    outline_side: NDArray[np.int8]
     detection: IntArray
 
     @property
@@ -99,6 +104,7 @@ def pad_candidates(
     }
     contrast = np.full(shape, np.nan)
     polarity = np.zeros(shape, dtype=np.int8)
+    outline_side = np.zeros(shape, dtype=np.int8)
     detection = np.full(shape, -1, dtype=np.int64)
     for column, table in enumerate(features):
         scan = np.asarray(table.scan, dtype=np.int64)
@@ -125,6 +131,7 @@ def pad_candidates(
             values[scan_kept, column, slot] = line_px + offset
         contrast[scan_kept, column, slot] = strength[rows]
         polarity[scan_kept, column, slot] = np.asarray(table.polarity)[rows]
+        outline_side[scan_kept, column, slot] = np.asarray(table.outline_side)[rows]
         detection[scan_kept, column, slot] = rows
     return Candidates(
         centre_px=out["centre_px"],
@@ -134,6 +141,7 @@ def pad_candidates(
         face_right_px=out["face_right_px"],
         contrast=contrast,
         polarity=polarity,
+        outline_side=outline_side,
         detection=detection,
     )
 

@@ -46,6 +46,14 @@ class MatchConfig:
     max_wire_width_mm : float
         The widest wire [mm]: a silhouette wider than that (a clamp on the wire, objects in
         line) gives no axis (step 5). The processor sets it from its ``wire_width_mm``.
+    min_wire_width_mm : float
+        The narrowest wire [mm]: with ``max_wire_width_mm`` the range of the radius measured
+        from outlines (step 5). The processor sets it from its ``wire_width_mm``.
+    wire_radius_mm : float
+        Radius of the wire [mm] assumed where a candidate's outline shows on one side only
+        (``outline_side``: :func:`.geometry._outline_axis`) until step 5 measures it (then
+        the matching is done again with the radius measured). The processor sets it from its
+        ``wire_width_mm``.
     min_separation_mm : float
         Two points of one scan closer than this are one wire seen twice; the weaker goes
         (:func:`.pipeline._separate`). Wires are 11-15 mm thick: two closer than this touch.
@@ -64,6 +72,8 @@ class MatchConfig:
     covering_pairs: bool = True
     two_view: bool = True
     max_wire_width_mm: float = CONTACT_WIRE_WIDTH_MM[1]
+    min_wire_width_mm: float = CONTACT_WIRE_WIDTH_MM[0]
+    wire_radius_mm: float = 0.25 * (CONTACT_WIRE_WIDTH_MM[0] + CONTACT_WIRE_WIDTH_MM[1])
     min_separation_mm: float = 30.0
 
     def cameras_needed(self, cameras: int) -> int:

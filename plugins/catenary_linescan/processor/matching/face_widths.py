@@ -167,7 +167,9 @@ def lit_chord_mm(
 
     A round wire lit from below shows its bottom: the lit part's ends are two points of its
     circle at one height, and the middles of its silhouettes triangulate to the middle of
-    that chord, not to the axis (:func:`..stereo.contact_from_axis`).
+    that chord, not to the axis (:func:`..stereo.contact_from_axis`). A point that a camera
+    saw the outline of on one side (``Candidates.outline_side``) was triangulated to the axis:
+    no chord.
 
     Returns
     -------
@@ -179,11 +181,12 @@ def lit_chord_mm(
     if rows.shape[0] == 0:
         return chord
     bright = candidates.polarity > 0
-    left, right = _gather(
+    left, right, outline = _gather(
         matches.scan[rows],
         matches.slot[rows],
         np.where(bright, candidates.left_px, np.nan),
         np.where(bright, candidates.right_px, np.nan),
+        np.abs(candidates.outline_side).astype(np.float64),
     )
     phi = np.zeros(rows.shape[0]) if roll_rad is None else roll_rad[matches.scan[rows]]
     x, z = matches.x_mm[rows], matches.z_mm[rows]
@@ -193,5 +196,5 @@ def lit_chord_mm(
         along = np.abs(du_dx * np.cos(phi) + du_dz * np.sin(phi))  # px per mm
         with np.errstate(invalid="ignore", divide="ignore"):
             per_camera[:, c] = (right[:, c] - left[:, c]) / along
-    chord[rows] = row_median(per_camera)
+    chord[rows] = np.where(np.nansum(outline, axis=1) > 0, np.nan, row_median(per_camera))
     return chord

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from catenary.arrays import FloatArray, IntArray
 from catenary_linescan.camera import LineScanCamera
@@ -42,6 +43,33 @@ class _Geometry:
 
 
 _geometries: dict[bytes, _Geometry] = {}
+
+
+_WHOLE = 0.9
+"""A silhouette within this fraction of the wire's diameter (and no wider than the diameter
+over it) shows the wire's whole outline."""
+
+
+def _outline_axis(
+    left_px: FloatArray,
+    right_px: FloatArray,
+    side: NDArray[np.int8],
+    px_per_mm: FloatArray,
+    radius_mm: float | FloatArray,
+) -> FloatArray:
+    """The image [px] of a round wire's axis from its silhouette ``left_px, right_px`` whose
+    outline shows on the left only where ``side`` is -1, the right only where +1: the ray
+    through an outline edge is tangent to the wire, ``radius_mm`` from its axis, which lies
+    inward of the edge by that many millimetres across the ray at the wire (``px_per_mm``).
+    A silhouette as wide as the wire (within :data:`_WHOLE` of its diameter there, whatever
+    its shading said) and one of ``side`` 0 give their middle; a wider one is wires in line,
+    and its outline's edge is the wire's at that end. Arrays broadcast."""
+    half = radius_mm * px_per_mm
+    width = right_px - left_px
+    one_side = (side != 0) & ((width < _WHOLE * 2.0 * half) | (width * _WHOLE > 2.0 * half))
+    edge = np.where(side < 0, left_px, right_px)
+    axis: FloatArray = np.where(one_side, edge - side * half, 0.5 * (left_px + right_px))
+    return axis
 
 
 def _line_coefficients(m: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:

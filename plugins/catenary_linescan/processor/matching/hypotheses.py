@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from catenary.arrays import FloatArray
 
 from .config import MatchConfig
-from .geometry import _Geometry
+from .geometry import _Geometry, _outline_axis
 
 
 def covering_pairs(centres: Sequence[FloatArray], needed: int) -> list[tuple[int, int]]:
@@ -107,6 +107,7 @@ def _enumerate(
     u: FloatArray,
     silhouette: tuple[FloatArray, FloatArray],
     polarity: NDArray[np.int8],
+    outline: NDArray[np.int8],
     sigma: FloatArray,
     config: MatchConfig,
     span: float,
@@ -128,6 +129,10 @@ def _enumerate(
     silhouette : (ndarray, ndarray), each shape (n, C, K)
         Ideal left and right silhouette edges [px].
     polarity : ndarray of int8, shape (n, C, K)
+    outline : ndarray of int8, shape (n, C, K)
+        Which edge alone is the wire's outline (``Candidates.outline_side``): such a
+        candidate's axis lies ``config.wire_radius_mm`` inward of it
+        (:func:`.geometry._outline_axis`) at the point, not at its centre.
     sigma : ndarray, shape (C,)
         Each camera's centre uncertainty [px] (:func:`.candidates.camera_sigmas_px`).
     span : float
@@ -138,7 +143,7 @@ def _enumerate(
     n, n_cameras, _ = u.shape
     if not pairs or n == 0:
         return _Hypotheses.empty(n_cameras)
-    block = _Block.of(geometry, u, silhouette, polarity, sigma, span)
+    block = _Block.of(geometry, u, silhouette, polarity, outline, sigma, span)
     if n * len(pairs) <= _ENUMERATE_GROUP_ROWS:
         return _hypotheses(block, pairs, config, needed)
     return _Hypotheses.concatenate([_hypotheses(block, [pair], config, needed) for pair in pairs])
@@ -154,7 +159,10 @@ class _Block:
     ``sorted_*`` fields are each camera's candidates sorted along each scan's line, flat
     over ``(C, n, K)``: ``keys`` their centres clipped to ``±span``, NaN at ``1.5 span``,
     offset by ``4 span`` per scan, so that one search per camera finds the candidate
-    nearest a query in its scan whatever the scans of the queries.
+    nearest a query in its scan whatever the scans of the queries. ``side`` (camera-major,
+    and sorted), ``left`` and ``right`` (camera-major) are the outline side and the
+    silhouette of candidates whose outline shows on one side only (``outline``: whether any
+    does).
     """
 
     coef: FloatArray
@@ -169,6 +177,11 @@ class _Block:
     sorted_left: FloatArray
     sorted_right: FloatArray
     sorted_polarity: NDArray[np.int8]
+    side: NDArray[np.int8]
+    left: FloatArray
+    right: FloatArray
+    sorted_side: NDArray[np.int8]
+    outline: bool
     span: float
 
     @classmethod
@@ -178,6 +191,7 @@ class _Block:
         u: FloatArray,
         silhouette: tuple[FloatArray, FloatArray],
         polarity: NDArray[np.int8],
+        outline: NDArray[np.int8],
         sigma: FloatArray,
         span: float,
     ) -> _Block:
@@ -201,6 +215,8 @@ class _Block:
             flat = (order + (np.arange(n_cameras * n) * k).reshape(n_cameras, n, 1)).ravel()
         ordered = values.ravel()[flat]
         offset = np.tile(np.repeat(np.arange(n, dtype=np.float64) * (4.0 * span), k), n_cameras)
+        side = np.ascontiguousarray(outline.transpose(1, 0, 2))
+        left, right = (np.ascontiguousarray(v.transpose(1, 0, 2)) for v in silhouette)
         return cls(
             coef=coef,
             p=m00 - values * m10,
@@ -214,6 +230,11 @@ class _Block:
             sorted_left=silhouette[0].transpose(1, 0, 2).ravel()[flat],
             sorted_right=silhouette[1].transpose(1, 0, 2).ravel()[flat],
             sorted_polarity=by_camera.ravel()[flat],
+            side=side,
+            left=left,
+            right=right,
+            sorted_side=side.ravel()[flat],
+            outline=bool(np.any(side)),
             span=span,
         )
 
@@ -289,6 +310,21 @@ def _pair_points(
         det = pa * qb - pb * qa
         x = (qb * ka - qa * kb) / det
         z = (pa * kb - pb * ka) / det
+        if block.outline:
+            # a candidate whose outline shows on one side: its axis at the point, and the
+            # point again (the resolution there hardly moves with it)
+            side_a = block.side[pair_a].ravel()[rows_a]
+            side_b = block.side[pair_b].ravel()[rows_b]
+            ma = _per_row(block.coef[:6, pair_a], pair, single)
+            mb = _per_row(block.coef[:6, pair_b], pair, single)
+            silhouette_a = (block.left[pair_a].ravel()[rows_a], block.right[pair_a].ravel()[rows_a])
+            silhouette_b = (block.left[pair_b].ravel()[rows_b], block.right[pair_b].ravel()[rows_b])
+            radius = config.wire_radius_mm
+            pa, qa, ka = _outline_rays(ma, x, z, side_a, silhouette_a, radius, (pa, qa, ka))
+            pb, qb, kb = _outline_rays(mb, x, z, side_b, silhouette_b, radius, (pb, qb, kb))
+            det = pa * qb - pb * qa
+            x = (qb * ka - qa * kb) / det
+            z = (pa * kb - pb * ka) / det
         ok = (x >= x_lo) & (x <= x_hi) & (z >= z_lo) & (z <= z_hi)
         ok &= ca[0] * (x - ca[2]) + ca[1] * (z - ca[3]) > 0.0
         ok &= cb[0] * (x - cb[2]) + cb[1] * (z - cb[3]) > 0.0
@@ -312,6 +348,30 @@ def _pair_points(
         pb=pb[keep],
         qb=qb[keep],
         polarity=np.where(pol_a != 0, pol_a, pol_b),
+    )
+
+
+def _outline_rays(
+    m: list[FloatArray],
+    x: FloatArray,
+    z: FloatArray,
+    side: NDArray[np.int8],
+    silhouette: tuple[FloatArray, FloatArray],
+    radius_mm: float,
+    rays: tuple[FloatArray, FloatArray, FloatArray],
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Equation 10's ``p, q, k`` ``rays`` with the rays of candidates whose outline shows
+    on one side (``side`` not 0; ``silhouette`` their left and right edges) through their
+    axis at the points ``(x, z)`` instead (:func:`.geometry._outline_axis`); ``m`` the
+    cameras' ``M`` per row."""
+    _, gx, gz = _project(m, x, z)
+    u = _outline_axis(*silhouette, side, np.hypot(gx, gz), radius_mm)
+    one_side = side != 0
+    p, q, k = rays
+    return (
+        np.where(one_side, m[0] - u * m[3], p),
+        np.where(one_side, m[1] - u * m[4], q),
+        np.where(one_side, u * m[5] - m[2], k),
     )
 
 
@@ -369,6 +429,7 @@ def _hypotheses(
     chi2 = np.zeros(h)
     keys_of = block.keys.reshape(n_cameras, n * k)
     span = block.span
+    radius = config.wire_radius_mm
     offset = scan * (4.0 * span)  # of the scan's keys
     scan_start = scan * k  # the scan's first sorted position in a camera's keys
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -400,7 +461,13 @@ def _hypotheses(
             upper = np.minimum(position, row_start + (k - 1))
             keys = block.keys
             pick = np.where(np.abs(keys[upper] - q) < np.abs(keys[lower] - q), upper, lower)
-            residual = query - block.sorted_u[pick]
+            found_u = block.sorted_u[pick]
+            if block.outline:
+                side = block.sorted_side[pick]
+                silhouette = block.sorted_left[pick], block.sorted_right[pick]
+                axis = _outline_axis(*silhouette, side, np.hypot(gcx, gcz), radius)
+                found_u = np.where(side != 0, axis, found_u)
+            residual = query - found_u
             found = block.sorted_slot[pick]
             confirmed = np.abs(residual) <= window
             # the image falls inside a candidate whose centre does not confirm it: perhaps

@@ -47,6 +47,27 @@ def match(
         Sorted by scan; within a scan in the order the conflicts were resolved (best first).
     """
     config = config or MatchConfig()
+    matches = _match(cameras, candidates, sigma_px, config)
+    measured = matches.radius_mm[np.isfinite(matches.radius_mm)]
+    if measured.shape[0] and abs(measured[0] - config.wire_radius_mm) > _RADIUS_AGAIN_MM:
+        matches = _match(cameras, candidates, sigma_px, replace(config, wire_radius_mm=measured[0]))
+    return matches
+
+
+_RADIUS_AGAIN_MM = 0.1
+"""The matching is done again with the wire's radius that step 5 measured in the block
+(:func:`.triangulate._outline_axes`) where it differs from the one assumed by more than this:
+candidates whose outline shows on one side only are imaged at the axis a radius inward of
+it, and a radius a millimetre off keeps a third camera from confirming their points."""
+
+
+def _match(
+    cameras: Sequence[LineScanCamera],
+    candidates: Candidates,
+    sigma_px: FloatArray,
+    config: MatchConfig,
+) -> Matches:
+    """:func:`match` with the wire's radius ``config.wire_radius_mm``."""
     n, n_cameras, k = candidates.shape
     if len(cameras) != n_cameras:
         raise ValueError(f"{len(cameras)} cameras for candidates of {n_cameras}")
@@ -64,9 +85,9 @@ def match(
     every_pair = list(itertools.combinations(range(n_cameras), 2))
     pairs = _covering_pairs(geometry, needed) if config.covering_pairs else every_pair
     others = [pair for pair in every_pair if pair not in pairs]
-    polarity = candidates.polarity
+    polarity, outline = candidates.polarity, candidates.outline_side
     hypotheses = _enumerate(
-        geometry, u, (left, right), polarity, sigma_px, config, span, needed, pairs
+        geometry, u, (left, right), polarity, outline, sigma_px, config, span, needed, pairs
     )
     if needed == 2:
         hypotheses = _two_view_agreement(cameras, candidates, hypotheses, sigma_px, config)
@@ -79,6 +100,7 @@ def match(
             free_u,
             (left[scans], right[scans]),
             polarity[scans],
+            outline[scans],
             sigma_px,
             config,
             span,
@@ -113,6 +135,7 @@ def match(
         free_u[rows],
         (left[rows], right[rows]),
         polarity[rows],
+        outline[rows],
         sigma_px,
         config,
         span,

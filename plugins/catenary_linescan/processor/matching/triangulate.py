@@ -14,7 +14,7 @@ from catenary_linescan.triangulation import TriangulationResult, triangulate
 
 from .candidates import Candidates
 from .config import MatchConfig
-from .geometry import _gather, _Geometry, _pinhole, _undistort
+from .geometry import _WHOLE, _gather, _Geometry, _outline_axis, _pinhole, _undistort
 
 
 @dataclass(frozen=True, eq=False)
@@ -45,6 +45,10 @@ class Matches:
         Confirmed by ``min_cameras``. The others (``MatchConfig.two_view``) are points of two
         cameras whose detections no verified point uses: unverifiable alone, they can only
         continue a wire's track where it predicts them (:mod:`..tracking`).
+    radius_mm : ndarray, shape (m,)
+        The wire's radius [mm] measured in the block from the points that cameras saw the
+        outline of on opposite sides only (:func:`_outline_axes`), the same for every point;
+        NaN: not measured (the processor's ``wire_radius_mm`` holds).
     """
 
     scan: IntArray
@@ -57,6 +61,7 @@ class Matches:
     sigma_x_mm: FloatArray
     sigma_z_mm: FloatArray
     verified: BoolArray
+    radius_mm: FloatArray
 
     @property
     def count(self) -> int:
@@ -75,6 +80,7 @@ class Matches:
             sigma_x_mm=self.sigma_x_mm[rows],
             sigma_z_mm=self.sigma_z_mm[rows],
             verified=self.verified[rows],
+            radius_mm=self.radius_mm[rows],
         )
 
 
@@ -169,6 +175,80 @@ def _image_points(
     return from_face, ideal
 
 
+_RADIUS_POINTS = 20
+"""Points of a block whose radius was measured (:func:`_outline_axes`) that its median needs."""
+
+
+def _outline_axes(
+    cameras: Sequence[LineScanCamera],
+    result: TriangulationResult,
+    ideal: FloatArray,
+    from_face: BoolArray,
+    side: NDArray[np.int8],
+    left_px: FloatArray,
+    right_px: FloatArray,
+    config: MatchConfig,
+    radius_mm: float,
+    measure: bool,
+) -> tuple[FloatArray, NDArray[np.intp], float | None]:
+    """``ideal`` ``(m, C)`` with the image of each camera whose candidate shows the wire's
+    outline on one side only (``side`` ``(m, C)``: -1 the left edge, +1 the right) moved
+    from its middle to the wire's axis at the triangulated points (:func:`.geometry.
+    _outline_axis`) with the radius ``radius_mm``, or the one measured here (``measure``),
+    for the points located by their silhouettes; the rows changed; and the radius measured
+    [mm] (None: not measured).
+
+    Where three cameras at least see a point and some saw the outline's left edge, others
+    its right, the edges bound the wire from both sides: the axis and the radius are fitted
+    together (one linearised least-squares step at the point). An assumed radius a
+    millimetre off moves such a point by two to five millimetres; the edges' noise moves one
+    point's radius by a few tenths, and its height by several times that: the radius taken is
+    the median of the block's such points whose radius is a contact wire's (half of
+    ``config``'s narrowest to widest wire), where :data:`_RADIUS_POINTS` are."""
+    n_cameras = ideal.shape[1]
+    use = (side != 0) & ~from_face[:, np.newaxis] & np.isfinite(result.x_mm)[:, np.newaxis]
+    rows = np.flatnonzero(use.any(axis=1))
+    if rows.shape[0] == 0:
+        return ideal, rows, None
+    x, z = result.x_mm[rows], result.z_mm[rows]
+    shape = (rows.shape[0], n_cameras)
+    u, gx, gz, left, right = (np.empty(shape) for _ in range(5))
+    for c, camera in enumerate(cameras):  # a loop per camera, not per point
+        u[:, c], gx[:, c], gz[:, c] = _Geometry.of(_pinhole(camera)).project(x, z)
+        left[:, c], right[:, c] = (_undistort(camera, v[rows, c]) for v in (left_px, right_px))
+    px_per_mm = np.hypot(gx, gz)
+    sides = np.where(use[rows], side[rows], 0)
+    with np.errstate(invalid="ignore"):
+        # (the widest wire's diameter here: one assumed too small would take the one-sided
+        # silhouettes of a wider wire for whole ones and never measure it)
+        diameter = config.max_wire_width_mm * px_per_mm
+        width = right - left
+        one = (sides != 0) & ((width < _WHOLE * diameter) | (width * _WHOLE > diameter))
+    seen = np.isfinite(ideal[rows])
+    fit = (one & (sides < 0)).any(axis=1) & (one & (sides > 0)).any(axis=1)
+    fit &= (seen.sum(axis=1) >= 3) & measure
+    measured = None
+    if np.count_nonzero(fit) >= _RADIUS_POINTS:
+        # u(x + dx, z + dz) + side r px_per_mm = edge; u(x + dx, z + dz) = middle elsewhere
+        target = np.where(one, np.where(sides < 0, left, right), ideal[rows])
+        jacobian = np.stack([gx, gz, np.where(one, sides * px_per_mm, 0.0)], axis=-1)
+        jacobian = np.where(seen[..., np.newaxis], jacobian, 0.0)[fit]
+        residual = np.where(seen, target - u, 0.0)[fit]
+        normal = np.einsum("rci,rcj->rij", jacobian, jacobian)
+        step = np.linalg.pinv(normal) @ np.einsum("rci,rc->ri", jacobian, residual)[..., None]
+        radii = step[:, 2, 0]
+        lo, hi = 0.5 * config.min_wire_width_mm, 0.5 * config.max_wire_width_mm
+        radii = radii[(radii >= lo) & (radii <= hi)]
+        if radii.shape[0] >= _RADIUS_POINTS:
+            measured = float(np.median(radii))
+    at_radius = radius_mm if measured is None else measured
+    ideal = ideal.copy()
+    ideal[rows] = np.where(
+        use[rows], _outline_axis(left, right, sides, px_per_mm, at_radius), ideal[rows]
+    )
+    return ideal, rows, measured
+
+
 def _triangulate_matches(
     cameras: Sequence[LineScanCamera],
     candidates: Candidates,
@@ -195,11 +275,22 @@ def _triangulate_matches(
     pinholes = [_pinhole(camera) for camera in cameras]
     from_face, ideal = _image_points(cameras, left, right, face_left, face_right, config)
     result = triangulate(pinholes, ideal, sigma_px=sigma)
+    cameras_index = np.arange(slot.shape[1])
+    side = np.where(
+        slot >= 0,
+        candidates.outline_side[scan[:, np.newaxis], cameras_index, np.maximum(slot, 0)],
+        0,
+    ).astype(np.int8)
+    ideal, rows, measured = _outline_axes(
+        cameras, result, ideal, from_face, side, left, right, config, config.wire_radius_mm, True
+    )
+    radius_mm = config.wire_radius_mm if measured is None else measured
+    if rows.shape[0]:
+        result = _again(result, rows, triangulate(pinholes, ideal[rows], sigma_px=sigma))
     # a dark silhouette (against a bright sky: the wire's outline) wider than a wire can be
     # is a clamp on the wire or objects in line: its middle is not the wire's, nor is a
     # face reaching its edges (a worn face clear inside it is; a lit wire's extent is not
     # its outline: not judged)
-    cameras_index = np.arange(slot.shape[1])
     polarity = candidates.polarity[scan[:, np.newaxis], cameras_index, np.maximum(slot, 0)]
     dark = (slot >= 0) & (polarity < 0)
     wide = np.zeros(dark.shape, dtype=bool)
@@ -226,6 +317,21 @@ def _triangulate_matches(
             cameras, left, right, face_left, face_right, config
         )
         result = _again(result, rows, triangulate(pinholes, ideal[rows], sigma_px=sigma))
+        ideal[rows], again, _ = _outline_axes(
+            cameras,
+            replace(result, x_mm=result.x_mm[rows], z_mm=result.z_mm[rows]),
+            ideal[rows],
+            from_face[rows],
+            side[rows],
+            left,
+            right,
+            config,
+            radius_mm,
+            False,
+        )
+        if again.shape[0]:
+            rows = rows[again]
+            result = _again(result, rows, triangulate(pinholes, ideal[rows], sigma_px=sigma))
     window = np.maximum(config.confirm_sigmas * sigma_px, config.floor_px)[np.newaxis, :]
     # leave-one-out, linearised: camera i's residual at the point the others give is
     # r_i / (1 - h_i), h_i = j_iᵀ (JᵀJ)⁻¹ j_i its leverage (j_i its row of the Jacobian)
@@ -268,4 +374,5 @@ def _triangulate_matches(
         sigma_x_mm=result.sigma_x_mm,
         sigma_z_mm=result.sigma_z_mm,
         verified=np.ones(scan.shape[0], dtype=bool),
+        radius_mm=np.full(scan.shape[0], np.nan if measured is None else measured),
     )
