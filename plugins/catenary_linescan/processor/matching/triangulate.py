@@ -276,11 +276,10 @@ def _triangulate_matches(
     from_face, ideal = _image_points(cameras, left, right, face_left, face_right, config)
     result = triangulate(pinholes, ideal, sigma_px=sigma)
     cameras_index = np.arange(slot.shape[1])
-    side = np.where(
-        slot >= 0,
-        candidates.outline_side[scan[:, np.newaxis], cameras_index, np.maximum(slot, 0)],
-        0,
-    ).astype(np.int8)
+    side = np.zeros(slot.shape, dtype=np.int8)
+    if candidates.outline_side.any():  # none unless the features look for outlines
+        outline = candidates.outline_side[scan[:, np.newaxis], cameras_index, np.maximum(slot, 0)]
+        side[slot >= 0] = outline[slot >= 0]
     ideal, rows, measured = _outline_axes(
         cameras, result, ideal, from_face, side, left, right, config, config.wire_radius_mm, True
     )
