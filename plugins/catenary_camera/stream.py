@@ -18,11 +18,11 @@ queues them (a bounded queue: frames wait in the backend's buffers beyond it); t
 thread places them into scans (:class:`~catenary_camera.assembly.ScanAssembler`) and yields
 a block whenever every connected camera has delivered its lines.
 
-**Dropping off.** A camera that delivers nothing for ``timeout_s`` (or whose heartbeat
-Aravis loses) is disconnected and reconnected every ``reconnect_interval_s``, while the
-others record on: the scans it misses are handed out without its line (``valid = False``).
-Back, its first :data:`PREROLL_FRAMES` frames teach its clock again (as when recording
-started; their lines are not kept) and the next is placed by time.
+**Dropping off.** A camera that delivers nothing for ``timeout_s`` is disconnected and
+reconnected every ``reconnect_interval_s``, while the others record on: the scans it misses
+are handed out without its line (``valid = False``). Back, its first :data:`PREROLL_FRAMES`
+frames teach its clock again (as when recording started; their lines are not kept) and the
+next is placed by time.
 
 **Positions.** Free-running: ``position_m`` is NaN and the stream declares
 ``positions_from_encoder``: the recorder interpolates the CAN encoder to the scan times.

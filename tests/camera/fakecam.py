@@ -14,10 +14,15 @@ process make busier).
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import functools
+import multiprocessing
+import os
 import re
+import signal
 import subprocess
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -31,6 +36,7 @@ Content = Callable[[int, int, int], np.ndarray]
 
 ADDRESSES = ("127.0.0.2", "127.0.0.3", "127.0.0.4", "127.0.0.5")
 MAX_WIDTH = 16384
+_PR_SET_PDEATHSIG = 1  # prctl: the signal a process gets when its parent ends (Linux)
 ACQUISITION_REGISTER = 0x124  # ARV_FAKE_CAMERA_REGISTER_ACQUISITION: 0 stops streaming
 
 _FILL = ctypes.CFUNCTYPE(
@@ -146,6 +152,57 @@ class FakeCamera:
         time.sleep(0.5)  # the frame under way is sent; then the camera streams no more
         self.fill(None)  # no Python callback may run while the camera is finalised
         self.camera = self._fake = None
+
+
+def _serve(
+    address: str, serial: str, genicam: str, rate_hz: float, go: Any, ready: Any, parent: int
+) -> None:
+    """A ``CameraProcess``'s body: once ``go`` is set, a fake camera filled with marked lines
+    at ``rate_hz``, until the process is killed, or its parent ends (however it ends: a
+    camera left behind would answer on its address in the next test). At real-time priority
+    where allowed (as root): a camera has its own line clock, which nothing on the host
+    delays."""
+    ctypes.CDLL(None).prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+    if os.getppid() != parent:  # it ended before the line above
+        return
+    with contextlib.suppress(PermissionError):  # its threads, created after, inherit it
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(10))
+    go.wait()
+    camera = FakeCamera(address, serial, Path(genicam))
+    camera.fill(marked_lines, rate_hz)
+    ready.set()
+    threading.Event().wait()
+
+
+class CameraProcess:
+    """A fake camera filled with ``marked_lines`` in a process of its own: ``kill`` ends it
+    as a camera losing its power would, with nothing more on the wire. The process starts
+    (Python, NumPy, Aravis loaded) when made and the camera when ``start`` is called."""
+
+    def __init__(self, address: str, serial: str, genicam: Path, rate_hz: float) -> None:
+        context = multiprocessing.get_context("spawn")
+        self.address = address
+        self._go, self._ready = context.Event(), context.Event()
+        self._process = context.Process(
+            target=_serve,
+            args=(address, serial, str(genicam), rate_hz, self._go, self._ready, os.getpid()),
+            name=f"fake camera {address}",
+            daemon=True,
+        )
+        self._process.start()
+
+    def start(self, timeout_s: float = 60.0) -> None:
+        """Start the camera; return once it streams."""
+        self._go.set()
+        if not self._ready.wait(timeout_s):
+            raise RuntimeError(
+                f"fake camera on {self.address} did not start "
+                f"(its process's exit code {self._process.exitcode})"
+            )
+
+    def kill(self) -> None:
+        self._process.kill()
+        self._process.join()
 
 
 @functools.cache

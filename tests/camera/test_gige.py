@@ -32,6 +32,7 @@ from catenary_camera.stream import GigeStream, _steadied, open_gige
 from tests.camera.canlog import can_log
 from tests.camera.fakecam import (
     ADDRESSES,
+    CameraProcess,
     Content,
     FakeCamera,
     line_marks,
@@ -172,26 +173,34 @@ def test_packet_loss_gives_invalid_lines_never_wrong_ones(
 
 
 def record_with_a_camera_dropping_off(genicam: Path, results: Queue[Any]) -> None:
-    """In a process of its own: four fake cameras recorded for 700 scans, cam3 stopped at
-    scan 50 and back 2 s later. Puts cam3's valid lines, its offsets and whether its lines
-    are intact, cam1's offsets and valid lines, and the summary; or a traceback. A crash
-    prints every thread's stack (and GLib its message) to the test's captured output."""
+    """In a process of its own, the four fake cameras each in a process of its own
+    (``CameraProcess``): 700 scans recorded, cam3's process killed near scan 50 (a camera
+    losing its power) and a new one started 2 s later. Puts cam3's valid lines, its offsets
+    and whether its lines are intact, cam1's offsets and valid lines, the summary and the
+    scan cam3 was killed in; or a traceback. A crash prints every thread's stack (and GLib
+    its message) to the test's captured output."""
     faulthandler.enable(all_threads=True)
     faulthandler.register(signal.SIGTRAP, all_threads=True, chain=True)  # GLib's g_error
-    cameras = fake_cameras(genicam)
+    processes = {
+        name: CameraProcess(address, f"CAT{i + 1}", genicam, RATE_HZ)
+        for i, (name, address) in enumerate(zip(NAMES, ADDRESSES, strict=True))
+    }
+    returned = CameraProcess(ADDRESSES[2], "CAT3", genicam, RATE_HZ)  # loaded, not started
     try:
+        for process in processes.values():
+            process.start()
         stream = open_gige(settings())
 
+        killed = []
+
         def drop_and_return() -> None:
-            # stopped at scan 50, halfway between its frames at scans 40 and 60 (0.2 s either
-            # way): 1 s after open_gige returned was up to 0.2 s later on a busy machine
-            # (open_gige returns a stamp's delay and more after scan 0), and the frame at scan
-            # 60 was sent
+            # killed near scan 50 (a busy machine wakes this thread late: the scan is taken
+            # from the time it was killed)
             time.sleep(max(stream.clock_zero_unix_s + 50 / RATE_HZ - time.time(), 0.0))
-            cameras["cam3"].close()
+            killed.append(time.time())
+            processes["cam3"].kill()
             time.sleep(2.0)
-            cameras["cam3"] = FakeCamera(ADDRESSES[2], "CAT3", genicam)
-            cameras["cam3"].fill(marked_lines, RATE_HZ)
+            returned.start()
 
         outage = threading.Thread(target=drop_and_return)
         outage.start()
@@ -202,11 +211,13 @@ def record_with_a_camera_dropping_off(genicam: Path, results: Queue[Any]) -> Non
         found, intact = offsets(blocks, "cam3")
         reference, _ = offsets(blocks, "cam1")
         valid, valid1 = joined(blocks, "cam3")[1], joined(blocks, "cam1")[1]
-        results.put((valid, found, intact, reference, valid1, stream.summary()))
+        killed_scan = int((killed[0] - stream.clock_zero_unix_s) * RATE_HZ)
+        results.put((valid, found, intact, reference, valid1, stream.summary(), killed_scan))
     except BaseException:
         results.put(traceback.format_exc())
     finally:
-        close_all(cameras)
+        for process in [*processes.values(), returned]:
+            process.kill()
 
 
 @pytest.mark.slow
@@ -243,9 +254,12 @@ def test_a_camera_dropping_off_is_reconnected(
     child.join(30.0)
     if isinstance(result, str):
         pytest.fail(result)
-    valid, found, intact, reference, valid1, summary = result
-    assert not valid[60:140].any()  # the 2 s it was away
-    assert valid[:40].all() and valid[-200:].all()  # before and after
+    valid, found, intact, reference, valid1, summary, killed = result
+    sent = killed // LINES * LINES  # its last frame, sent as its first line was taken
+    changes = (killed, np.flatnonzero(np.diff(valid.astype(np.int8))) + 1)  # its valid runs
+    assert 40 <= sent <= 200, changes
+    assert valid[:sent].all() and valid[-200:].all(), changes  # before and after
+    assert not valid[sent + LINES : sent + LINES + 80].any(), changes  # the 2 s it was away
     assert intact.all() and found.size <= 2  # before and after: the camera restarts its lines
     assert (np.abs(found.astype(np.int64) - int(reference[0])) <= STAMP_LINES).all()
     assert valid1.all()  # the others recorded on
