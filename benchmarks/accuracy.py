@@ -57,7 +57,7 @@ from catenary.measurement.wear import (
     stagger_angle_by_wire_rad,
 )
 from catenary_linescan.calibrate import calibrate_from_captures, rig_from_reports
-from catenary_linescan.processor.stereo import LineScanProcessor
+from catenary_linescan.processor.stereo import LineScanProcessor, ProcessorConfig
 from catenary_linescan.rig import Rig
 from catenary_linescan.simulator import (
     DEMO_RIG_PATH,
@@ -274,12 +274,14 @@ def measure(
     *,
     filter_hz: float = DEFAULT_FILTER_HZ,
     scans: tuple[int, int] | None = None,
+    config: ProcessorConfig | None = None,
 ) -> dict[str, Any]:
-    """Process a simulated run with the calibrated ``rig`` and score it (:func:`evaluate`);
-    adds ``scans``, ``seconds`` (simulation and processing), ``processing_s`` and the
-    processor's ``table_check``. ``scans`` ``(first, stop)``: only the chunks that hold
-    those scans (a stretch of the run, as a regression test cuts it)."""
-    processor = LineScanProcessor(rig)
+    """Process a simulated run with the calibrated ``rig`` (processor settings ``config``,
+    None: the defaults) and score it (:func:`evaluate`); adds ``scans``, ``seconds``
+    (simulation and processing), ``processing_s`` and the processor's ``table_check``.
+    ``scans`` ``(first, stop)``: only the chunks that hold those scans (a stretch of the
+    run, as a regression test cuts it)."""
+    processor = LineScanProcessor(rig, config)
     got = Collected()
     bit_depth = {c.name: c.bit_depth for c in sim.rig.cameras}
     started = time.perf_counter()

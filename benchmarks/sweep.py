@@ -50,6 +50,7 @@ import traceback
 from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -58,7 +59,7 @@ from accuracy import build_simulation, calibrated_rig, measure
 
 from catenary.arrays import BoolArray, FloatArray
 from catenary_linescan.processor.features import extract_features
-from catenary_linescan.processor.stereo import LineScanProcessor
+from catenary_linescan.processor.stereo import LineScanProcessor, ProcessorConfig
 from catenary_linescan.simulator.rigs import PIXEL_PITCH_UM, generate_rig
 from catenary_wiretypes import load_profiles
 
@@ -228,10 +229,14 @@ def draw(seed: int, scene: int, length_m: tuple[float, float] = (150.0, 300.0)) 
     )
 
 
-def run_scenario(scenario: Scenario, scans: tuple[int, int] | None = None) -> dict[str, Any]:
-    """Calibrate the scene's rig from its captures, run and score it: one table row.
-    ``scans`` ``(first, stop)``: only the stretch of the run that holds them
-    (:func:`accuracy.measure`)."""
+def run_scenario(
+    scenario: Scenario,
+    scans: tuple[int, int] | None = None,
+    config: ProcessorConfig | None = None,
+) -> dict[str, Any]:
+    """Calibrate the scene's rig from its captures, run and score it with the processor
+    settings ``config`` (None: the defaults): one table row. ``scans`` ``(first, stop)``:
+    only the stretch of the run that holds them (:func:`accuracy.measure`)."""
     row: dict[str, Any] = {
         k: v for k, v in asdict(scenario).items() if k not in ("glare_span", "blind_camera")
     }
@@ -246,7 +251,8 @@ def run_scenario(scenario: Scenario, scans: tuple[int, int] | None = None) -> di
         with tempfile.TemporaryDirectory() as tmp:
             rig = calibrated_rig(Path(tmp), settings["rig"])
         calibration_s = time.perf_counter() - started
-        result = measure(build_simulation(settings, scenario.scene_params()), rig, scans=scans)
+        simulation = build_simulation(settings, scenario.scene_params())
+        result = measure(simulation, rig, scans=scans, config=config)
     except Exception:
         row.update(error=traceback.format_exc(limit=3).strip().splitlines()[-1])
         row.update(seconds=round(time.perf_counter() - started, 1))
@@ -279,7 +285,9 @@ def run_scenario(scenario: Scenario, scans: tuple[int, int] | None = None) -> di
 
 
 def camera_report(
-    scenario: Scenario, scans: tuple[int, int] | None = None
+    scenario: Scenario,
+    scans: tuple[int, int] | None = None,
+    config: ProcessorConfig | None = None,
 ) -> dict[str, dict[str, float]]:
     """Each camera's features of the scene's running contact wires against where the
     simulator drew them in that camera (the diagnosis of a scene that fails): per camera,
@@ -293,7 +301,7 @@ def camera_report(
     with tempfile.TemporaryDirectory() as tmp:
         rig = calibrated_rig(Path(tmp), settings["rig"])
     sim = build_simulation(settings, scenario.scene_params())
-    stage = LineScanProcessor(rig).stage
+    stage = LineScanProcessor(rig, config).stage
     contact = np.flatnonzero([wire.contact for wire in sim.scene.wires])
     bit_depth = {c.name: c.bit_depth for c in sim.rig.cameras}
     first, stop = 0, sim.chunk_count
@@ -530,7 +538,13 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="with --scene: each camera's features against the truth (no scoring)",
     )
+    parser.add_argument(
+        "--outlines",
+        action="store_true",
+        help="the processor setting outlines = true (an unworn wire's outline on one side)",
+    )
     args = parser.parse_args(argv)
+    config = ProcessorConfig(outlines=True) if args.outlines else None
     if args.scans is not None and args.scene is None:
         parser.error("--scans needs --scene")
     if args.cameras:
@@ -538,13 +552,14 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--cameras needs --scene")
         scenario = draw(args.seed, args.scene, tuple(args.length_m))
         print(scenario)
-        for line in camera_lines(camera_report(scenario, args.scans)):
+        for line in camera_lines(camera_report(scenario, args.scans, config)):
             print(line)
         return 0
     numbers = [args.scene] if args.scene is not None else list(range(args.scenes))
     scenarios = [draw(args.seed, k, tuple(args.length_m)) for k in numbers]
     print(
-        f"sweep: {len(scenarios)} scene(s) of seed {args.seed}, {args.jobs} job(s)",
+        f"sweep: {len(scenarios)} scene(s) of seed {args.seed}, {args.jobs} job(s)"
+        + (", outlines on" if args.outlines else ""),
         file=sys.stderr,
     )
     for s in scenarios:
@@ -554,12 +569,12 @@ def main(argv: list[str] | None = None) -> int:
     if args.jobs > 1 and len(scenarios) > 1:
         os.environ.setdefault("OMP_NUM_THREADS", "1")
         with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-            for row in pool.map(run_scenario, scenarios):
+            for row in pool.map(partial(run_scenario, config=config), scenarios):
                 rows.append(row)
                 print(row_line(row), file=sys.stderr, flush=True)
     else:
         for scenario in scenarios:
-            rows.append(run_scenario(scenario, args.scans))
+            rows.append(run_scenario(scenario, args.scans, config))
             print(row_line(rows[-1]), file=sys.stderr, flush=True)
     elapsed = time.perf_counter() - started
     if args.out:
