@@ -696,6 +696,31 @@ def test_an_unworn_wire_lit_from_one_side_gives_the_edge_of_its_outline() -> Non
         assert np.max(errors) < 2.5
 
 
+def test_a_dark_silhouette_split_at_a_face_has_no_outline_side() -> None:
+    """A fitting by white daylight: a dark silhouette split by a face darker than the sky
+    (sweep scene 41). Each part's outer edge is a blurred occlusion step and its edge at the
+    face falls as steeply, but neither part is a wire seen on one side: they used to get
+    ``outline_side`` (a third of them), and the matching put the axis a radius inward of
+    the face's edge, 8.5 mm off."""
+    from scipy.ndimage import gaussian_filter1d
+
+    def split_at_a_face(left: float, n: int = 1024, sub: int = 16) -> np.ndarray:
+        x = (np.arange(n * sub) + 0.5) / sub - 0.5
+        fine = np.interp(x - left, [0.0, 70.0, 70.0, 82.0, 82.0, 130.0], [10, 10, 70, 70, 12, 12])
+        fine = np.where((x >= left) & (x < left + 130.0), fine, 110.0)
+        blurred: np.ndarray = gaussian_filter1d(fine, 1.5 * sub).reshape(n, sub).mean(axis=1)
+        return blurred
+
+    left = np.array([400.0 + p + 8 * k for k in range(4) for p in np.linspace(0, 1, 16, False)])
+    rng = np.random.default_rng(7)
+    clean = np.stack([split_at_a_face(a) for a in left])
+    lines = np.clip(np.rint(clean + rng.normal(0.0, 1.3, clean.shape)), 0, 255).astype(np.uint8)
+    config = FeatureConfig.from_resolution((10.6, 14.8), (0.2, 0.25), outlines=True)
+    f = extract_features(lines, 8, config=config)
+    assert len(f) == 2 * left.shape[0]
+    assert np.all(f.outline_side == 0)
+
+
 def test_cloud_texture_on_the_sky_pixels_does_not_move_a_boundary() -> None:
     """A narrow cloud (6 DN) on the sky pixels beside a wire: the sky ramp through them is
     wrong by a few DN next to the wire, which used to pull the right boundary 15 px into the

@@ -1121,7 +1121,7 @@ def _fine(
     offset = windows.first_px[sel].astype(np.float64)
     nan = np.float64(np.nan)
     if cfg.outlines:
-        outline_side = _outline_sides(windows, sky, boundaries, sel, cfg)
+        outline_side = _outline_sides(windows, sky, boundaries, sel, (gap_l, gap_r), cfg)
         outline_side[has_face] = 0
     else:
         outline_side = np.zeros(sel.shape[0], np.int8)
@@ -1322,6 +1322,7 @@ def _outline_sides(
     sky: _Sky,
     boundaries: _Boundaries,
     sel: IndexArray,
+    gaps: tuple[IndexArray, IndexArray],
     cfg: FeatureConfig,
 ) -> NDArray[np.int8]:
     """Which boundary alone of candidates ``sel`` ``(s,)`` is the wire's outline (module
@@ -1329,10 +1330,19 @@ def _outline_sides(
 
     A boundary is the outline (the wire occludes the sky there) when the line has fallen to
     half the candidate's darkest deviation from the sky just inside it, as a blurred step
-    does: on average over the pixels 1 to ``sharp_px // 2`` (at least 2) inside. The end of
+    does (on average over the pixels 1 to ``sharp_px // 2``, at least 2, inside). The end of
     a lit part is brighter than the sky inside; an unworn wire's shading, from a dark side
-    to a lit bottom as bright as the sky, darkens over a good part of the wire."""
+    to a lit bottom as bright as the sky, darkens over a good part of the wire. Only a
+    candidate with the sky clear of other runs for half the narrowest wire's width on both
+    sides (``gaps``: the sky's limits ``gap_l, gap_r`` [line px], ``(m,)`` each) is a whole
+    wire: a dark silhouette split at a face (a fitting's, by white daylight) has its other
+    part just beyond the face, and each part's outer edge is an outline."""
     w = windows
+    gap_l, gap_r = gaps
+    radius = 0.5 * cfg.wire_width_px[0]
+    first = w.first_px[sel]
+    clear_l = boundaries.left[sel] + first - gap_l[sel] >= radius
+    clear_r = gap_r[sel] - (boundaries.right[sel] + first) >= radius
     inward = np.arange(1, max(2, cfg.sharp_px // 2) + 1)
     last = (w.own[sel] - 1)[:, np.newaxis]
     left = np.clip(np.ceil(boundaries.left[sel]).astype(np.intp)[:, np.newaxis] + inward, 0, last)
@@ -1349,7 +1359,8 @@ def _outline_sides(
     between = (px >= left[:, :1]) & (px <= right[:, :1])
     darkest = -np.where(between, deviation, np.inf).min(axis=1)
     half = np.where(darkest > cfg.boundary_k * w.s4[sel], -0.5 * darkest, -np.inf)
-    outline_l, outline_r = level_l <= half, level_r <= half
+    clear = clear_l & clear_r
+    outline_l, outline_r = (level_l <= half) & clear, (level_r <= half) & clear
     side = np.where(outline_l & ~outline_r, -1, np.where(outline_r & ~outline_l, 1, 0))
     return side.astype(np.int8)
 
