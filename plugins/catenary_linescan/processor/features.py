@@ -52,7 +52,10 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
    as a blurred step does; the end of a lit part is brighter than the sky inside, and an
    unworn wire's shading darkens over a good part of the wire. A wire without a face whose
    outline shows on one side only (``outline_side``: by day behind the filter, lit from one
-   side, its other side as bright as the sky) is located by that edge in the matching.
+   side, its other side as bright as the sky) is located by that edge in the matching. Only
+   a candidate with the sky clear of other runs beside both boundaries is such a wire: each
+   part of a dark silhouette split at its face (a fitting by white daylight) has a steep
+   outer edge too.
 4. **Wear face** (step 3). The worn face is brighter than the wire's round sides in every
    lighting, so its edges are the strongest rising and falling first differences inside the
    wire (the zero crossings of the second difference). For a bright object they are
@@ -232,8 +235,8 @@ class FeatureConfig:
         report which boundary alone is a faceless wire's outline (``outline_side``; module
         docstring, steps 2-3), which the matching then images at the axis a radius inward.
         Off by default: on the scenario sweep it raises the recall of unworn wire behind the
-        band-pass filter (README), but it moves the heights of some worn and glared 16k
-        scenes by millimetres, which is not yet understood. Off, runs one bin apart in
+        band-pass filter (README), but it costs some worn 16k scenes recall and heights,
+        which is not yet understood. Off, runs one bin apart in
         opposite polarity are joined and ``outline_side`` is 0.
     """
 
