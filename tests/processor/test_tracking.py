@@ -329,6 +329,23 @@ def test_a_crossing_keeps_both_wires_and_drops_the_pipe_on_them() -> None:
         assert np.unique(wire[truth == label]).shape == (1,)
 
 
+def test_a_wire_is_kept_once_the_wire_it_rode_over_has_ended() -> None:
+    # a wire 33 mm over another (more than RESTING_MM: the lower one is the running wire)
+    # until the lower one's track ends: from there on the upper one is kept at once, not a
+    # metre later (the lower track held beyond its end as if it were still beneath it)
+    stream = Stream(3000, seed=17)
+    p = stream.position
+    x = zigzag(p)
+    stream.wire(0, x, np.full(p.shape, 2000.0), np.ones(p.shape, bool), miss=0.0)
+    lower = (p >= 10.0) & (p < 25.0)
+    stream.wire(1, x + 1.0, np.full(p.shape, 2000.0 - RESTING_MM - 3.0), lower, miss=0.0)
+    scan, _, truth, _, _, _ = run(stream, 1024)
+    ended = int(np.flatnonzero(lower)[-1])
+    upper = scan[truth == 0]
+    assert np.all((upper <= np.flatnonzero(lower)[0]) | (upper > ended))  # rests on it there
+    assert np.count_nonzero(upper > ended) == p.shape[0] - 1 - ended
+
+
 def test_a_messenger_alone_where_its_contact_wire_was_lost_is_uncertain() -> None:
     # the contact wire not matched over 20 m (glare), its messenger seen all along
     stream = Stream(12000, seed=14)

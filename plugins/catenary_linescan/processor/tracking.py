@@ -26,8 +26,8 @@ the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 m
    scans where it was missed), or more than ``max_height_mm`` above the roof, is not a
    contact wire — a messenger, or a contact wire raised out of running at an overlap's end
    on its way to its anchor — nor is one more than
-   ``RESTING_MM`` above a track within ``RESTING_ACROSS_MM`` across (a crossing's pipe on
-   the wire, a wire riding over it). The contact wire is the lowest wire of its system, so
+   ``RESTING_MM`` above a track within ``RESTING_ACROSS_MM`` across, where that track runs
+   (a crossing's pipe on the wire, a wire riding over it). The contact wire is the lowest wire of its system, so
    a point with a lower wire's evidence beneath it is not reported as a contact wire
    either, even when that wire's points made no confirmed track (a worn wire scattered by
    daylight): ``LOWER_WIRE_POINTS`` verified points of no confirmed track within
@@ -944,8 +944,9 @@ class WireTracker:
         one image of both wires.
 
         Each track is interpolated between its points (so a scan where it was missed still
-        counts) and held beyond its ends for ``max_gap_m`` (a wire missed in the first or
-        last scans it is seen in).
+        counts) and, for the lowest, held beyond its ends for ``max_gap_m`` (a wire missed in
+        the first or last scans it is seen in); resting and crossing are judged within its
+        span.
         """
         lowest = np.full(released.scan.shape[0], np.inf)
         resting = np.zeros(released.scan.shape[0], dtype=bool)
@@ -970,11 +971,14 @@ class WireTracker:
             lowest = np.minimum(lowest, z)
             company += near
             across = np.abs(np.interp(released.scan, s, x) - released.x_mm)
-            resting |= (across <= RESTING_ACROSS_MM) & (released.z_mm > z + RESTING_MM)
-            # within the track's own span (held beyond its ends, its x would cross others), by
-            # a track seen in a scan with it (another wire: one wire's two tracks, by its face
-            # and by its silhouettes, never share a scan)
+            # resting and crossing within the track's own span: held beyond its ends, its x
+            # would cross others, and its last height would lie beneath the wire's own next
+            # track (a track that ended on a stray point 33 mm low took a metre of the wire
+            # that continued it for resting on it: sweep scene 43)
             spanned = (released.scan >= s[0]) & (released.scan <= s[-1])
+            resting |= spanned & (across <= RESTING_ACROSS_MM) & (released.z_mm > z + RESTING_MM)
+            # crossing: by a track seen in a scan with it (another wire: one wire's two tracks,
+            # by its face and by its silhouettes, never share a scan)
             level = spanned & (np.abs(released.z_mm - z) <= RESTING_MM)
             others = [
                 other
