@@ -22,26 +22,25 @@ the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 m
    in ``min_coverage`` of its scans: fittings never do; a track that ends unconfirmed is
    dropped with its points;
 4. **removes messengers by height** at release: a point more than ``messenger_gap_mm`` above
-   the lowest confirmed track at its scan (each track's height interpolated across the
-   scans where it was missed), or more than ``max_height_mm`` above the roof, is not a
-   contact wire — a messenger, or a contact wire raised out of running at an overlap's end
-   on its way to its anchor — nor is one more than
-   ``RESTING_MM`` above a track within ``RESTING_ACROSS_MM`` across, where that track runs
-   (a crossing's pipe on the wire, a wire riding over it). The contact wire is the lowest wire of its system, so
-   a point with a lower wire's evidence beneath it is not reported as a contact wire
-   either, even when that wire's points made no confirmed track (a worn wire scattered by
-   daylight): ``LOWER_WIRE_POINTS`` verified points of no confirmed track within
-   ``max_gap_m`` along the track (as far as the tracker sees ahead), more than
-   ``messenger_gap_mm`` below the point's track, mark it ``selection_uncertain`` (a column
-   of the released points): the selection cannot tell which wire runs there. So
-   does a track alone in view that was last seen above another wire, not level with one:
-   a messenger whose contact wire the cameras lost; so does a point higher than a wire
-   that ended before it (seen over a longer stretch than the point's track) could have
-   climbed since (``CONTACT_GRADIENT_MM_PER_M``), and the rest of its track while it stays
-   alone: a messenger first seen, or seen with another, where its contact wire was lost;
-   and a point with another track within
-   ``CROSSING_MM`` across at its height (a turnout's crossing: the cameras see one image of
-   both wires, located between them);
+   the lowest confirmed track at its scan (each track's height interpolated across the scans
+   where it was missed), or more than ``max_height_mm`` above the roof, is not a contact
+   wire — a messenger, or a contact wire raised out of running at an overlap's end on its
+   way to its anchor — nor is one more than ``RESTING_MM`` above a track within
+   ``RESTING_ACROSS_MM`` across, where that track runs (a crossing's pipe on the wire, a
+   wire riding over it). The contact wire is the lowest wire of its system, so a point with
+   a lower wire's evidence beneath it is not reported as a contact wire either, even when
+   that wire's points made no confirmed track (a worn wire scattered by daylight):
+   ``LOWER_WIRE_POINTS`` verified points of no confirmed track within ``max_gap_m`` along
+   the track (as far as the tracker sees ahead), more than ``messenger_gap_mm`` below the
+   point's track, mark it ``selection_uncertain`` (a column of the released points): the
+   selection cannot tell which wire runs there. So does a track alone in view that was last
+   seen above another wire, not level with one: a messenger whose contact wire the cameras
+   lost; so does a point higher than a wire that ended before it (seen over a longer stretch
+   than the point's track) could have climbed since (``CONTACT_GRADIENT_MM_PER_M``), and the
+   rest of its track while it stays alone: a messenger first seen, or seen with another,
+   where its contact wire was lost; and a point with another track within ``CROSSING_MM``
+   across at its height (a turnout's crossing: the cameras see one image of both wires,
+   located between them);
 5. **numbers** each track at its first contact point (0, 1, ... in order of appearance) and
    keeps the number through the run: a track that ended up to ``reidentify_m`` before and
    near where the new one starts hands its number over;
