@@ -236,8 +236,8 @@ class FeatureConfig:
         docstring, steps 2-3), which the matching then images at the axis a radius inward.
         Off by default: on the scenario sweep it raises the recall of unworn wire behind the
         band-pass filter (README), but it costs some worn 16k scenes recall and heights,
-        which is not yet understood. Off, runs one bin apart in
-        opposite polarity are joined and ``outline_side`` is 0.
+        which is not yet understood. Off, runs one bin apart in opposite polarity are
+        joined and ``outline_side`` is 0.
     """
 
     wire_width_px: tuple[float, float] = (10.6 / 0.5, 14.8 / 0.2)
@@ -1341,11 +1341,6 @@ def _outline_sides(
     wire: a dark silhouette split at a face (a fitting's, by white daylight) has its other
     part just beyond the face, and each part's outer edge is an outline."""
     w = windows
-    gap_l, gap_r = gaps
-    radius = 0.5 * cfg.wire_width_px[0]
-    first = w.first_px[sel]
-    clear_l = boundaries.left[sel] + first - gap_l[sel] >= radius
-    clear_r = gap_r[sel] - (boundaries.right[sel] + first) >= radius
     inward = np.arange(1, max(2, cfg.sharp_px // 2) + 1)
     last = (w.own[sel] - 1)[:, np.newaxis]
     left = np.clip(np.ceil(boundaries.left[sel]).astype(np.intp)[:, np.newaxis] + inward, 0, last)
@@ -1362,7 +1357,11 @@ def _outline_sides(
     between = (px >= left[:, :1]) & (px <= right[:, :1])
     darkest = -np.where(between, deviation, np.inf).min(axis=1)
     half = np.where(darkest > cfg.boundary_k * w.s4[sel], -0.5 * darkest, -np.inf)
-    clear = clear_l & clear_r
+    # the sky beside both boundaries clear of other runs for a narrow wire's radius [line px]
+    radius, first = 0.5 * cfg.wire_width_px[0], w.first_px[sel]
+    clear = (boundaries.left[sel] + first - gaps[0][sel] >= radius) & (
+        gaps[1][sel] - (boundaries.right[sel] + first) >= radius
+    )
     outline_l, outline_r = (level_l <= half) & clear, (level_r <= half) & clear
     side = np.where(outline_l & ~outline_r, -1, np.where(outline_r & ~outline_l, 1, 0))
     return side.astype(np.int8)

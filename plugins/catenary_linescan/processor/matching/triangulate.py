@@ -181,7 +181,7 @@ _RADIUS_POINTS = 20
 
 def _outline_axes(
     cameras: Sequence[LineScanCamera],
-    result: TriangulationResult,
+    points_mm: tuple[FloatArray, FloatArray],
     ideal: FloatArray,
     from_face: BoolArray,
     side: NDArray[np.int8],
@@ -193,10 +193,10 @@ def _outline_axes(
 ) -> tuple[FloatArray, NDArray[np.intp], float | None]:
     """``ideal`` ``(m, C)`` with the image of each camera whose candidate shows the wire's
     outline on one side only (``side`` ``(m, C)``: -1 the left edge, +1 the right) moved
-    from its middle to the wire's axis at the triangulated points (:func:`.geometry.
-    _outline_axis`) with the radius ``radius_mm``, or the one measured here (``measure``),
-    for the points located by their silhouettes; the rows changed; and the radius measured
-    [mm] (None: not measured).
+    from its middle to the wire's axis at the triangulated points ``points_mm`` (``x, z``,
+    ``(m,)`` each; :func:`.geometry._outline_axis`) with the radius ``radius_mm``, or the
+    one measured here (``measure``), for the points located by their silhouettes; the rows
+    changed; and the radius measured [mm] (None: not measured).
 
     Where three cameras at least see a point and some saw the outline's left edge, others
     its right, the edges bound the wire from both sides: the axis and the radius are fitted
@@ -206,11 +206,12 @@ def _outline_axes(
     the median of the block's such points whose radius is a contact wire's (half of
     ``config``'s narrowest to widest wire), where :data:`_RADIUS_POINTS` are."""
     n_cameras = ideal.shape[1]
-    use = (side != 0) & ~from_face[:, np.newaxis] & np.isfinite(result.x_mm)[:, np.newaxis]
+    x_mm, z_mm = points_mm
+    use = (side != 0) & ~from_face[:, np.newaxis] & np.isfinite(x_mm)[:, np.newaxis]
     rows = np.flatnonzero(use.any(axis=1))
     if rows.shape[0] == 0:
         return ideal, rows, None
-    x, z = result.x_mm[rows], result.z_mm[rows]
+    x, z = x_mm[rows], z_mm[rows]
     shape = (rows.shape[0], n_cameras)
     u, gx, gz, left, right = (np.empty(shape) for _ in range(5))
     for c, camera in enumerate(cameras):  # a loop per camera, not per point
@@ -281,7 +282,16 @@ def _triangulate_matches(
         outline = candidates.outline_side[scan[:, np.newaxis], cameras_index, np.maximum(slot, 0)]
         side[slot >= 0] = outline[slot >= 0]
     ideal, rows, measured = _outline_axes(
-        cameras, result, ideal, from_face, side, left, right, config, config.wire_radius_mm, True
+        cameras,
+        (result.x_mm, result.z_mm),
+        ideal,
+        from_face,
+        side,
+        left,
+        right,
+        config,
+        config.wire_radius_mm,
+        True,
     )
     radius_mm = config.wire_radius_mm if measured is None else measured
     if rows.shape[0]:
@@ -318,7 +328,7 @@ def _triangulate_matches(
         result = _again(result, rows, triangulate(pinholes, ideal[rows], sigma_px=sigma))
         ideal[rows], again, _ = _outline_axes(
             cameras,
-            replace(result, x_mm=result.x_mm[rows], z_mm=result.z_mm[rows]),
+            (result.x_mm[rows], result.z_mm[rows]),
             ideal[rows],
             from_face[rows],
             side[rows],
