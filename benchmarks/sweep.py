@@ -359,22 +359,23 @@ def _nearest_candidates(found: Any, truth: Any, wire: int, running: BoolArray) -
         order = np.lexsort((distance, found.scan))
         scans, first = np.unique(found.scan[order], return_index=True)
         nearest[scans] = order[first]
-    pick = nearest[rows]
-    has = pick >= 0
-    nan = np.full(rows.shape[0], np.nan)
+    pick = nearest[rows]  # -1: no candidate in that scan
+
+    def take(values: FloatArray) -> FloatArray:
+        return np.append(values, np.nan)[pick]  # index -1 takes the NaN appended
 
     def error(values: FloatArray, true: FloatArray) -> FloatArray:
-        return np.where(has, values[np.maximum(pick, 0)] - true[rows], nan)
+        return take(values) - true[rows]
 
     true_face = truth.face_right_px[rows, wire] - truth.face_left_px[rows, wire] > 1.0
     return np.stack(
         [
             0.5 * (right - left)[rows],
-            np.where(has, found.wire_centre_px[np.maximum(pick, 0)] - middle[rows], np.inf),
+            np.where(pick >= 0, take(found.wire_centre_px) - middle[rows], np.inf),
             error(found.left_px, left),
             error(found.right_px, right),
             true_face.astype(np.float64),
-            (has & np.isfinite(found.face_left_px[np.maximum(pick, 0)])).astype(np.float64),
+            np.isfinite(take(found.face_left_px)).astype(np.float64),
             error(found.face_left_px, truth.face_left_px[:, wire]),
             error(found.face_right_px, truth.face_right_px[:, wire]),
         ]

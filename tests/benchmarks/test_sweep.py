@@ -7,9 +7,12 @@ import csv
 import math
 from dataclasses import replace
 from pathlib import Path
-from types import ModuleType
+from types import ModuleType, SimpleNamespace
 
+import numpy as np
 import pytest
+
+from catenary_linescan.processor.features import LineFeatures
 
 from catenary_wiretypes import load_profiles
 
@@ -99,6 +102,23 @@ def test_two_tiny_scenes_give_a_table_and_a_summary(
         assert f"\n{name} " in printed
     for name in [*sweep.TARGETS, "false_wire"]:
         assert f"fail {name} " in printed
+
+
+def test_a_camera_without_candidates_counts_as_not_finding_the_wire(sweep: ModuleType) -> None:
+    """A blinded camera may give no candidate in a whole block: its scans are missed, with
+    no edge errors (the report of scene 45 used to stop there with an IndexError)."""
+    edges = np.array([[100.0], [102.0], [np.nan]])
+    truth = SimpleNamespace(
+        left_px=edges, right_px=edges + 20.0, face_left_px=edges + 4.0, face_right_px=edges + 16.0
+    )
+    running = np.array([True, True, True])
+    parts = sweep._nearest_candidates(LineFeatures.empty(), truth, 0, running)
+    assert parts.shape == (8, 2)  # the scan where the wire is not in view is not counted
+    half, centre, left, right, face_true, face_found, face_l, face_r = parts
+    np.testing.assert_array_equal(half, [10.0, 10.0])
+    assert np.all(np.isinf(centre)) and not np.any(face_found)
+    assert np.all(np.isnan(np.concatenate([left, right, face_l, face_r])))
+    np.testing.assert_array_equal(face_true, [1.0, 1.0])
 
 
 @pytest.mark.slow

@@ -81,11 +81,12 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
 6. **A dark silhouette's face edge next to its silhouette** (white daylight, wide faces):
    the step from the sky down to the wire's dark side and the step up to the face are
    opposite and pull each other's first-difference peaks apart (by about 1 px when 1.5 px
-   apart, still 0.1-0.5 px at 3 px under a blur of 1 px). A wire with a face edge from 0.8
-   to 6 px from its silhouette is fitted whole: a blurred four-edge profile (the sky's
-   ramp beside it, one level for both dark sides, the face's level, the four edges and a
-   Gaussian blur started from the wider of the silhouette edges' peaks) by Gauss-Newton on
-   the smoothed window. A dark side narrower than the blur shows its level only together
+   apart, still 0.1-0.5 px at 3 px under a blur of 1 px, and from further under a blur of
+   several: a 16k line's face edge 3.8 px from its silhouette read 1.6 px inward). A wire
+   with a face edge from 0.8 to 6 px (``sharp_px`` if more) from its silhouette is fitted
+   whole: a blurred four-edge profile (the sky's ramp beside it, one level for both dark
+   sides, the face's level, the four edges and a Gaussian blur started from the wider of
+   the silhouette edges' peaks) by Gauss-Newton on the smoothed window. A dark side narrower than the blur shows its level only together
    with its width: the other side gives it. Closer than 0.8 px the two cannot be told
    apart: that side keeps its edges (and a one-sided face, step 4, its own); so does a face
    narrower than three blur deviations, whose level and width trade off.
@@ -1116,7 +1117,7 @@ def _fine(
     wires = _kept_wires(windows, sky, contrast, boundaries, sel, cfg)
     edges = _face_edges(wires, cfg)
     faces = _one_sided_faces(wires, edges, cfg)
-    fitted = _near_silhouette_fit(wires, faces)
+    fitted = _near_silhouette_fit(wires, faces, cfg)
     # a wire whose sides are too dark to be seen (at night) is narrow but has its face
     keep = boundaries.wide_enough[sel] | fitted.has_face
     sel = sel[keep]
@@ -1576,14 +1577,16 @@ class _Fitted:
     has_face: NDArray[np.bool_]
 
 
-def _near_silhouette_fit(wires: _Wires, faces: _Faces) -> _Fitted:
+def _near_silhouette_fit(wires: _Wires, faces: _Faces, cfg: FeatureConfig) -> _Fitted:
     """Step 6: a dark silhouette with a face edge between ``_NEAR_MIN_PX`` and ``_NEAR_PX``
-    from its silhouette is fitted whole (:func:`_fit_wire`); a side whose edges are closer
-    than ``_NEAR_MIN_PX`` (one step) keeps them. A one-sided face keeps the edges it has."""
+    (``sharp_px`` if more: a blur of several pixels) from its silhouette is fitted whole
+    (:func:`_fit_wire`); a side whose edges are closer than ``_NEAR_MIN_PX`` (one step)
+    keeps them. A one-sided face keeps the edges it has."""
     clear_l = faces.left - wires.left
     clear_r = wires.right - faces.right
-    near = (clear_l > _NEAR_MIN_PX) & (clear_l < _NEAR_PX)
-    near |= (clear_r > _NEAR_MIN_PX) & (clear_r < _NEAR_PX)
+    reach = max(_NEAR_PX, float(cfg.sharp_px))
+    near = (clear_l > _NEAR_MIN_PX) & (clear_l < reach)
+    near |= (clear_r > _NEAR_MIN_PX) & (clear_r < reach)
     pick = np.flatnonzero(wires.dark & faces.found & ~faces.one_sided & near)
     if pick.shape[0] == 0:
         return _Fitted(wires.left, wires.right, faces.left, faces.right, faces.found)
