@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 from catenary_linescan.processor.features import LineFeatures
-
 from catenary_wiretypes import load_profiles
 
 

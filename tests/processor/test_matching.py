@@ -9,15 +9,16 @@ view, a blind camera, missed detections, ghosts, twelve wires, merged silhouette
 from __future__ import annotations
 
 import itertools
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import pytest
 
-from catenary_linescan.calibration import resolution_table_from_camera
+from catenary_linescan.calibration import ResolutionTable, resolution_table_from_camera
 from catenary_linescan.camera import LineScanCamera
-from catenary_linescan.processor.features import FeatureConfig
+from catenary_linescan.processor.features import FACE_RESOLVED_PX, FeatureConfig
 from catenary_linescan.processor.matching import (
+    Candidates,
     MatchConfig,
     Matches,
     camera_sigmas_px,
@@ -28,7 +29,7 @@ from catenary_linescan.processor.matching import (
     pad_candidates,
 )
 from catenary_linescan.processor.matching.evidence import unseen_in_lines
-from catenary_linescan.processor.matching.geometry import _Geometry, _undistort
+from catenary_linescan.processor.matching.geometry import _gather, _Geometry, _undistort
 from catenary_linescan.simulator import DEMO_RIG_PATH, Simulation, load_rig, parse_settings
 from catenary_linescan.simulator.simulation import Chunk
 
@@ -565,17 +566,32 @@ def test_the_window_follows_the_calibration(rig_cameras) -> None:
     assert np.all(loose.cameras == 4)
 
 
+def tables_of(cameras: list[LineScanCamera]) -> list[ResolutionTable]:
+    """Each camera's look-up table over the demo rig's field."""
+    x, z = np.arange(-600.0, 601.0, 100.0), np.arange(1300.0, 2501.0, 100.0)
+    return [resolution_table_from_camera(c, x, z) for c in cameras]
+
+
+def clear_of_silhouette(candidates: Candidates, matches: Matches) -> np.ndarray:
+    """Per match and camera ``(m, C)``: a face whose edges both lie FACE_RESOLVED_PX or more
+    inside the silhouette."""
+    left, right, face_left, face_right = _gather(
+        matches.scan,
+        matches.slot,
+        candidates.left_px,
+        candidates.right_px,
+        candidates.face_left_px,
+        candidates.face_right_px,
+    )
+    return np.fmin(face_left - left, right - face_right) >= FACE_RESOLVED_PX
+
+
 def test_face_widths_from_the_camera_model(overlap_chunk, rig_cameras) -> None:
     names, cameras = rig_cameras
     features, _ = features_from_truth(overlap_chunk, names, np.random.default_rng(9))
     candidates = pad_candidates(features, overlap_chunk.scans)
     matches = verified(cameras, candidates, sigma())
-    tables = [
-        resolution_table_from_camera(
-            c, np.arange(-600.0, 601.0, 100.0), np.arange(1300.0, 2501.0, 100.0)
-        )
-        for c in cameras
-    ]
+    tables = tables_of(cameras)
     roll = np.radians(overlap_chunk.truth.roll_deg)
     widths = face_widths_mm(cameras, tables, candidates, matches, roll)
     which, _distance, contact = truth_of(matches, overlap_chunk, names, cameras)
@@ -595,6 +611,42 @@ def test_face_widths_from_the_camera_model(overlap_chunk, rig_cameras) -> None:
     # a "face" wider than a contact wire can be is a fitting's: not a width
     capped = face_widths_mm(cameras, tables, candidates, matches, roll, max_width_mm=3.0)
     assert np.all(np.isnan(capped.width_mm[worn & (true_w > 3.5)]))
+
+
+@pytest.mark.parametrize("polarity", [-1, 1])
+def test_a_dark_silhouette_s_face_edge_merged_with_its_silhouette_gives_way(
+    overlap_chunk, rig_cameras, polarity: int
+) -> None:
+    """A dark silhouette's face edge closer to its silhouette than FACE_RESOLVED_PX is one
+    blurred step with it, outward by more than the wire's side between them: camera 0's
+    right face edge, 0.3 px outward (about 0.12 mm of width) with its silhouette 0.4 px
+    beyond, is left out where two resolved cameras agree, though within the tolerance of
+    the median. A bright face on a darker sky (night, the filter) is off by far less there,
+    and its camera stays in the mean."""
+    names, cameras = rig_cameras
+    features, _ = features_from_truth(overlap_chunk, names, np.random.default_rng(9))
+    features = [replace(f, polarity=np.full(f.scan.shape, polarity, np.int8)) for f in features]
+    merged = features[0].face_right_px + 0.3
+    features[0] = replace(features[0], face_right_px=merged, right_px=merged + 0.4)
+    candidates = pad_candidates(features, overlap_chunk.scans)
+    matches = verified(cameras, candidates, sigma())
+    roll = np.radians(overlap_chunk.truth.roll_deg)
+    widths = face_widths_mm(cameras, tables_of(cameras), candidates, matches, roll)
+    which, _distance, contact = truth_of(matches, overlap_chunk, names, cameras)
+    true_w = overlap_chunk.truth.wear_width_inplane_mm[matches.scan, which]
+    others = np.count_nonzero(clear_of_silhouette(candidates, matches)[:, 1:], axis=1) >= 2
+    worn = contact & (true_w > 1.0) & (matches.slot[:, 0] >= 0) & others
+    assert np.count_nonzero(worn) > 100
+    wide = widths.per_camera_mm[worn, 0] - true_w[worn]
+    assert 0.08 < np.median(wide) < 0.25  # within the tolerance of the others
+    error = widths.width_mm[worn] - true_w[worn]
+    if polarity < 0:
+        # camera 0 in the mean would make it about 0.03 mm; two or three cameras' noise
+        assert abs(np.mean(error)) < 0.005 and np.max(np.abs(error)) < 0.08
+        assert np.all(widths.cameras[worn] <= 3)
+    else:
+        assert 0.02 < np.mean(error) < 0.04
+        assert np.all(widths.cameras[worn] == 4)
 
 
 def test_pad_candidates_caps_by_contrast_and_orders_by_position() -> None:

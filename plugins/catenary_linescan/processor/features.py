@@ -86,10 +86,11 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
    with a face edge from 0.8 to 6 px (``sharp_px`` if more) from its silhouette is fitted
    whole: a blurred four-edge profile (the sky's ramp beside it, one level for both dark
    sides, the face's level, the four edges and a Gaussian blur started from the wider of
-   the silhouette edges' peaks) by Gauss-Newton on the smoothed window. A dark side narrower than the blur shows its level only together
-   with its width: the other side gives it. Closer than 0.8 px the two cannot be told
-   apart: that side keeps its edges (and a one-sided face, step 4, its own); so does a face
-   narrower than three blur deviations, whose level and width trade off.
+   the silhouette edges' peaks) by Gauss-Newton on the smoothed window. A dark side
+   narrower than the blur shows its level only together with its width: the other side
+   gives it. Closer than 0.8 px the two cannot be told apart: that side keeps its edges
+   (and a one-sided face, step 4, its own); so does a face narrower than three blur
+   deviations, whose level and width trade off.
 
 Faces narrower than the optical blur (about 2.5-3 px with the smoothing) are not resolved:
 their edges read about 2.4-3.3 px apart. Near the wear limit the opposite: a face edge closer
@@ -130,7 +131,7 @@ from numpy.typing import NDArray
 
 from catenary.arrays import FloatArray, IndexArray
 
-__all__ = ["FeatureConfig", "LineFeatures", "extract_features", "noise_sigma"]
+__all__ = ["FACE_RESOLVED_PX", "FeatureConfig", "LineFeatures", "extract_features", "noise_sigma"]
 
 
 _GROUP_BYTES = 1 << 22
@@ -169,7 +170,7 @@ a disc: flat-topped over several pixels, where the three top samples wander with
 difference within ``sharp_px`` (:func:`_edge`)."""
 _CENTROID_ITERATIONS = 3
 _NEAR_PX = 6.0
-_NEAR_MIN_PX = 0.8
+FACE_RESOLVED_PX = 0.8
 """A dark silhouette with a face edge between these distances [px] from its silhouette is
 fitted whole (module docstring, step 6)."""
 _FIT_ITERATIONS = 8
@@ -1578,20 +1579,20 @@ class _Fitted:
 
 
 def _near_silhouette_fit(wires: _Wires, faces: _Faces, cfg: FeatureConfig) -> _Fitted:
-    """Step 6: a dark silhouette with a face edge between ``_NEAR_MIN_PX`` and ``_NEAR_PX``
+    """Step 6: a dark silhouette with a face edge between ``FACE_RESOLVED_PX`` and ``_NEAR_PX``
     (``sharp_px`` if more: a blur of several pixels) from its silhouette is fitted whole
-    (:func:`_fit_wire`); a side whose edges are closer than ``_NEAR_MIN_PX`` (one step)
+    (:func:`_fit_wire`); a side whose edges are closer than ``FACE_RESOLVED_PX`` (one step)
     keeps them. A one-sided face keeps the edges it has."""
     clear_l = faces.left - wires.left
     clear_r = wires.right - faces.right
     reach = max(_NEAR_PX, float(cfg.sharp_px))
-    near = (clear_l > _NEAR_MIN_PX) & (clear_l < reach)
-    near |= (clear_r > _NEAR_MIN_PX) & (clear_r < reach)
+    near = (clear_l > FACE_RESOLVED_PX) & (clear_l < reach)
+    near |= (clear_r > FACE_RESOLVED_PX) & (clear_r < reach)
     pick = np.flatnonzero(wires.dark & faces.found & ~faces.one_sided & near)
     if pick.shape[0] == 0:
         return _Fitted(wires.left, wires.right, faces.left, faces.right, faces.found)
     edges = np.stack([wires.left, faces.left, faces.right, wires.right], axis=1)
-    held = np.stack([clear_l[pick], clear_r[pick]], axis=1)[:, [0, 0, 1, 1]] <= _NEAR_MIN_PX
+    held = np.stack([clear_l[pick], clear_r[pick]], axis=1)[:, [0, 0, 1, 1]] <= FACE_RESOLVED_PX
     edges[pick] = _fit_wire(wires, pick, edges[pick], held)
     left, face_left, face_right, right = edges.T
     return _Fitted(left, right, face_left, face_right, faces.found & (face_right > face_left))

@@ -11,6 +11,7 @@ import numpy as np
 from catenary.arrays import FloatArray, IntArray, row_median
 from catenary_linescan.calibration import ResolutionTable
 from catenary_linescan.camera import LineScanCamera
+from catenary_linescan.processor.features import FACE_RESOLVED_PX
 
 from .candidates import Candidates
 from .geometry import _gather, _Geometry, _line_coefficients, _undistort
@@ -132,18 +133,28 @@ def face_widths_mm(
             ratio[rows, c] = width / (table.at(x_c, z_c) * width_px)
         _, du_dx, _ = geometry.project(x_c, z_c)
         resolution[rows, c] = 1.0 / np.abs(du_dx)  # ideal model: enough for a weight
-    median = row_median(per_camera)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        agree = np.abs(per_camera - median[:, np.newaxis]) <= tolerance_mm
-        weight = np.where(agree, 1.0 / resolution**2, 0.0)
-        total = weight.sum(axis=1)
-        combined = (weight * np.nan_to_num(per_camera)).sum(axis=1) / total
-        deviation = np.where(agree, np.abs(per_camera - combined[:, np.newaxis]), 0.0)
-    agreeing = agree.sum(axis=1)
+    # a dark silhouette's face edge closer to its silhouette than the features can part them
+    # is that merged step, outward by more than its distance from the silhouette (features
+    # module docstring; a bright face's, on a darker sky, is off by far less)
+    sil_left, sil_right, polarity = _gather(
+        matches.scan,
+        matches.slot,
+        candidates.left_px,
+        candidates.right_px,
+        candidates.polarity.astype(np.float64),
+    )
+    merged = np.fmin(left - sil_left, sil_right - right) < FACE_RESOLVED_PX
+    resolved = ~(merged & (polarity < 0.0))
+    clear = _combine(np.where(resolved, per_camera, np.nan), resolution, tolerance_mm)
+    every = _combine(per_camera, resolution, tolerance_mm)
+    use_clear = clear[1] >= 2
+    combined, agreeing, spread = (
+        np.where(use_clear, a, b) for a, b in zip(clear, every, strict=True)
+    )
     # two cameras at least must agree on a face; none seeing one is a face below resolution
     combined = np.where(agreeing >= 2, combined, np.where(faces == 0, 0.0, np.nan))
     combined = np.where(np.isfinite(x), combined, np.nan)
-    spread = np.where(agreeing >= 2, deviation.max(axis=1, initial=0.0), np.nan)
+    spread = np.where(agreeing >= 2, spread, np.nan)
     return FaceWidths(
         per_camera_mm=per_camera,
         table_ratio=ratio,
@@ -151,6 +162,22 @@ def face_widths_mm(
         spread_mm=spread,
         cameras=agreeing.astype(np.int64),
     )
+
+
+def _combine(
+    per_camera: FloatArray, resolution: FloatArray, tolerance_mm: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Each row's cameras ``(m, C)`` [mm] (NaN: none) combined: the mean weighted by
+    precision (``1 / resolution²``, ``resolution`` ``(m, C)`` [mm/px]) over the cameras within
+    ``tolerance_mm`` of the median; with how many those are and their largest difference
+    from the mean [mm], each ``(m,)``."""
+    median = row_median(per_camera)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        agree = np.abs(per_camera - median[:, np.newaxis]) <= tolerance_mm
+        weight = np.where(agree, 1.0 / resolution**2, 0.0)
+        combined = (weight * np.nan_to_num(per_camera)).sum(axis=1) / weight.sum(axis=1)
+        deviation = np.where(agree, np.abs(per_camera - combined[:, np.newaxis]), 0.0)
+    return combined, agree.sum(axis=1).astype(np.float64), deviation.max(axis=1, initial=0.0)
 
 
 def lit_chord_mm(
