@@ -549,6 +549,31 @@ def test_a_face_between_blurred_silhouette_edges_on_a_fine_rig(face: float) -> N
     assert np.sqrt(np.mean(edges**2)) < 0.25
 
 
+@pytest.mark.parametrize("gap", [3.8, 5.0])
+@pytest.mark.parametrize("blur", [2.0, 2.5])
+def test_a_face_edge_near_its_silhouette_under_a_wide_blur(gap: float, blur: float) -> None:
+    """White daylight on a 16,384-px rig (``sharp_px`` 10): a face edge 3.8-5 px from its
+    silhouette under a blur of 2-2.5 px is pulled by the silhouette's opposite step (0.5-1.5
+    px inward, sweep scene 18) beyond the 6 px out to which step 6 used to fit the two
+    together; it reaches ``sharp_px`` now."""
+    phases = np.linspace(0.0, 1.0, 16, endpoint=False)
+    lines = np.stack(
+        [
+            silhouette(990 + p, 1110 + p, 990 + gap + p, 1100 + p, 80.0, width=2048, blur=blur)
+            for p in phases
+        ]
+    )
+    config = FeatureConfig.from_resolution((10.6, 14.8), (0.06, 0.18))
+    assert config.sharp_px == 10
+    f = extract_features(np.rint(lines * 200.0).astype(np.uint16), 16, config=config)
+    np.testing.assert_array_equal(f.scan, np.arange(phases.shape[0]))
+    np.testing.assert_allclose(f.face_left_px, 990 + gap + phases, atol=0.12)
+    f = extract_features(with_noise(lines), 8, config=config)
+    np.testing.assert_array_equal(f.scan, np.arange(phases.shape[0]))
+    error = f.face_left_px - (990 + gap + phases)
+    assert np.sqrt(np.mean(error**2)) < 0.06
+
+
 def test_an_unworn_wire_on_a_fine_rig_has_no_face() -> None:
     """The same blurred silhouette without a face: its edges' ramps are not a face."""
     phases = np.linspace(0.0, 1.0, 16, endpoint=False)
