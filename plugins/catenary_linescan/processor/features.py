@@ -174,6 +174,8 @@ FACE_RESOLVED_PX = 0.8
 """A dark silhouette with a face edge between these distances [px] from its silhouette is
 fitted whole (module docstring, step 6)."""
 _FIT_ITERATIONS = 8
+_FIT_SETTLED_PX = 1e-3
+"""A wire whose fitted edges moved less than this in a step [px] is not fitted further."""
 _MIXED = 0.5
 """A candidate whose weaker deviation (bright or dark) exceeds this fraction of the stronger
 has no polarity (0)."""
@@ -1641,42 +1643,69 @@ def _fit_wire(
     middle = np.rint(0.5 * (edges[:, 1] + edges[:, 2])).astype(np.intp)
     face = xs[rows, np.clip(middle, 0, width - 1)]
     fitted = edges.copy()
-    sign = np.array([1.0, 1.0, -1.0, -1.0])
+    active = np.arange(k)  # the wires whose edges still move
     for _ in range(_FIT_ITERATIONS):
-        z = t[:, None, :] - fitted[:, :, None]  # (k, 4, n)
-        cdf, pdf = _normal_cdf(z * scale[:, None, None])
-        wire = cdf[:, 0] - cdf[:, 3]
-        flat = cdf[:, 1] - cdf[:, 2]
-        step = np.stack([dark[:, None] - sky, (face - dark)[:, None] * np.ones_like(sky)], 1)
-        model = sky + step[:, 0] * wire + step[:, 1] * flat
-        # d model / d (the four edges, dark level, face level, blur scale)
-        height = step[:, [0, 1, 1, 0]] * sign[None, :, None]  # each edge's signed step
-        jac = np.concatenate(
-            [
-                -scale[:, None, None] * height * pdf,
-                (wire - flat)[:, None],
-                flat[:, None],
-                (height * pdf * z).sum(axis=1)[:, None],
-            ],
-            axis=1,
+        a = active
+        delta = _fit_step(
+            t[a], weight[a], v[a], sky[a], scale[a], fitted[a], dark[a], face[a], held[a]
         )
-        jac *= weight[:, None, :]
-        jac[:, :4] *= ~held[:, :, None]
-        normal = np.einsum("kin,kjn->kij", jac, jac)
-        normal += np.eye(7) * (1e-9 * np.trace(normal, axis1=1, axis2=2) + 1e-12)[:, None, None]
-        rhs = np.einsum("kin,kn->ki", jac, (v - model) * weight)
-        delta = np.linalg.solve(normal, rhs[:, :, None])[:, :, 0]
-        delta = np.where(np.isfinite(delta), delta, 0.0)
-        fitted += np.clip(delta[:, :4], -1.0, 1.0)
-        np.maximum.accumulate(fitted, axis=1, out=fitted)  # in their order
-        fitted[held] = edges[held]
-        dark += delta[:, 4]
-        face += delta[:, 5]
-        scale *= np.exp(np.clip(delta[:, 6] / scale, -0.5, 0.5))
+        moved = np.clip(delta[:, :4], -1.0, 1.0)
+        moved_edges = fitted[a] + moved
+        np.maximum.accumulate(moved_edges, axis=1, out=moved_edges)  # in their order
+        fitted[a] = np.where(held[a], edges[a], moved_edges)
+        dark[a] += delta[:, 4]
+        face[a] += delta[:, 5]
+        scale[a] *= np.exp(np.clip(delta[:, 6] / scale[a], -0.5, 0.5))
+        active = a[np.abs(moved).max(axis=1) >= _FIT_SETTLED_PX]
+        if active.shape[0] == 0:
+            break
     good = np.all(np.abs(fitted - edges) < 3.0, axis=1)
     good &= edges[:, 2] - edges[:, 1] > 3.0 * np.sqrt(variance)
     out: FloatArray = np.where(good[:, None], fitted, edges)
     return out
+
+
+def _fit_step(
+    t: FloatArray,
+    weight: FloatArray,
+    v: FloatArray,
+    sky: FloatArray,
+    scale: FloatArray,
+    edges: FloatArray,
+    dark: FloatArray,
+    face: FloatArray,
+    held: NDArray[np.bool_],
+) -> FloatArray:
+    """One Gauss-Newton step of :func:`_fit_wire`'s model for ``k`` wires: the windows'
+    pixel positions ``t``, weights, values ``v`` and sky ramp ``(k, n)``, the blur's inverse
+    deviation ``scale`` ``(k,)`` [1/px], the four edges ``(k, 4)`` [px] (those ``held`` stay)
+    and the dark and face levels ``(k,)``; the change ``(k, 7)`` of the edges, the two
+    levels and ``scale``."""
+    sign = np.array([1.0, 1.0, -1.0, -1.0])
+    z = t[:, None, :] - edges[:, :, None]  # (k, 4, n)
+    cdf, pdf = _normal_cdf(z * scale[:, None, None])
+    wire = cdf[:, 0] - cdf[:, 3]
+    flat = cdf[:, 1] - cdf[:, 2]
+    step = np.stack([dark[:, None] - sky, (face - dark)[:, None] * np.ones_like(sky)], 1)
+    model = sky + step[:, 0] * wire + step[:, 1] * flat
+    # d model / d (the four edges, dark level, face level, blur scale)
+    height = step[:, [0, 1, 1, 0]] * sign[None, :, None]  # each edge's signed step
+    jac = np.concatenate(
+        [
+            -scale[:, None, None] * height * pdf,
+            (wire - flat)[:, None],
+            flat[:, None],
+            (height * pdf * z).sum(axis=1)[:, None],
+        ],
+        axis=1,
+    )
+    jac *= weight[:, None, :]
+    jac[:, :4] *= ~held[:, :, None]
+    normal = np.einsum("kin,kjn->kij", jac, jac)
+    normal += np.eye(7) * (1e-9 * np.trace(normal, axis1=1, axis2=2) + 1e-12)[:, None, None]
+    rhs = np.einsum("kin,kn->ki", jac, (v - model) * weight)
+    delta: FloatArray = np.linalg.solve(normal, rhs[:, :, None])[:, :, 0]
+    return np.where(np.isfinite(delta), delta, 0.0)
 
 
 def _normal_cdf(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
