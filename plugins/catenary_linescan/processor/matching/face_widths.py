@@ -33,10 +33,13 @@ class FaceWidths:
     width_mm : ndarray, shape (m,)
         Combined width [mm]: median of the cameras, then the mean weighted by each camera's
         precision (``1 / resolution²``) over the cameras within ``tolerance`` of the median,
-        when two cameras at least agree. 0.0 when no confirming camera saw a face (a new
-        wire, or a face narrower than the features resolve, about two pixels: 0.6 mm, which
-        leaves the residual thickness within 0.01 mm of the new wire's); NaN when faces were
-        seen but fewer than two cameras agree (not measured).
+        when two cameras at least agree. Only the cameras that resolve both face edges where
+        two of those agree: a dark silhouette's face edge closer than ``FACE_RESOLVED_PX``
+        to its silhouette is one blurred step with it, and lies outward of the face's edge.
+        0.0 when no confirming camera saw a face (a new wire, or a face narrower than the
+        features resolve, about two pixels: 0.6 mm, which leaves the residual thickness
+        within 0.01 mm of the new wire's); NaN when faces were seen but fewer than two
+        cameras agree (not measured).
     spread_mm : ndarray, shape (m,)
         Largest difference of an agreeing camera from the combined width [mm].
     cameras : ndarray of int, shape (m,)
