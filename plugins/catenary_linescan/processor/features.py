@@ -171,8 +171,9 @@ difference within ``sharp_px`` (:func:`_edge`)."""
 _CENTROID_ITERATIONS = 3
 _NEAR_PX = 6.0
 FACE_RESOLVED_PX = 0.8
-"""A dark silhouette with a face edge between these distances [px] from its silhouette is
-fitted whole (module docstring, step 6)."""
+"""A dark silhouette with a face edge between this and ``_NEAR_PX`` (``sharp_px`` if more)
+[px] from its silhouette is fitted whole (module docstring, step 6); closer, the two are one
+blurred step, and the face edge lies outward of the face's (the matching's face widths)."""
 _FIT_ITERATIONS = 8
 _FIT_SETTLED_PX = 1e-3
 """A wire whose fitted edges moved less than this in a step [px] is not fitted further."""
