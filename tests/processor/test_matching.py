@@ -347,6 +347,52 @@ def test_twelve_wires_in_view(rig_cameras) -> None:
     assert np.all(np.bincount(matches.scan * wires + which) == 1)
 
 
+def crossing_features(cameras, x: np.ndarray, z: np.ndarray, seed: int) -> list[Features]:
+    """Dark silhouettes 12 mm wide, no face, of the wires at ``x``, ``z`` ``(n, w)`` [mm]."""
+    rng = np.random.default_rng(seed)
+    features = []
+    for camera in cameras:
+        u = camera.project(x, z) + rng.normal(0.0, NOISE_PX, x.shape)
+        half = np.abs(0.5 * camera.project(x + 6.0, z) - 0.5 * camera.project(x - 6.0, z))
+        s, m = np.nonzero(np.isfinite(u))
+        uu, hh = u[s, m], half[s, m]
+        nan = np.full(s.shape, np.nan)
+        polarity = -np.ones(s.shape, np.int8)
+        features.append(
+            Features(s, uu, uu - hh, uu + hh, nan, nan, np.full(s.shape, 0.3), polarity)
+        )
+    return features
+
+
+def test_two_wires_near_a_crossing_are_both_found(rig_cameras) -> None:
+    """A turnout's wires at one height 21-40 mm apart (surfaces 6-25 mm apart): each camera
+    sees two silhouettes, and both wires are points (two wires closer than the widest wire
+    and the blur touch in the images: the tracker flags those, ``CROSSING_MM``)."""
+    _names, cameras = rig_cameras
+    n = 200
+    apart = np.linspace(21.0, 40.0, n)
+    x = np.stack([-60.0 - 0.5 * apart, -60.0 + 0.5 * apart], axis=1)
+    z = np.full((n, 2), 1600.0)
+    matches = verified(cameras, pad_candidates(crossing_features(cameras, x, z, 8), n), sigma())
+    assert matches.count == 2 * n
+    distance = np.hypot(
+        x[matches.scan] - matches.x_mm[:, None], z[matches.scan] - matches.z_mm[:, None]
+    )
+    assert np.max(distance.min(axis=1)) < 0.5
+    assert np.all(np.bincount(matches.scan * 2 + distance.argmin(axis=1)) == 1)
+
+
+def test_what_rests_on_a_wire_is_one_point_with_it(rig_cameras) -> None:
+    """A crossing's pipe clamped above the wire, 20 mm higher and 5 mm across: one wire seen
+    twice for the matching (the tracker tells a wire from what rests on it)."""
+    _names, cameras = rig_cameras
+    n = 200
+    x = np.stack([np.full(n, -60.0), np.full(n, -55.0)], axis=1)
+    z = np.stack([np.full(n, 1600.0), np.full(n, 1620.0)], axis=1)
+    matches = verified(cameras, pad_candidates(crossing_features(cameras, x, z, 9), n), sigma())
+    assert np.all(np.bincount(matches.scan, minlength=n) == 1)
+
+
 def test_a_wire_in_line_with_its_messenger(rig_cameras) -> None:
     """In one camera a contact wire and its messenger are one silhouette (white daylight):
     its centre is neither's. Two other cameras see each; the merged silhouette supports both."""

@@ -55,8 +55,15 @@ class MatchConfig:
         the matching is done again with the radius measured). The processor sets it from its
         ``wire_width_mm``.
     min_separation_mm : float
-        Two points of one scan closer than this are one wire seen twice; the weaker goes
-        (:func:`.pipeline._separate`). Wires are 11-15 mm thick: two closer than this touch.
+        Two points of one scan closer than this are one wire seen twice, or a wire and what
+        rests on it; the weaker goes (:func:`.pipeline._separate`). Wires are 11-15 mm
+        thick: two closer than this touch.
+    level_separation_mm : float
+        Two verified points side by side (a height apart under half their distance across)
+        at least this far apart across are two wires however close (a turnout's, which meet
+        at one height): the widest wire (15 mm) and the blur, within which they make one image
+        (the tracker's ``CROSSING_MM``). ``min_separation_mm`` alone lost both wires of a
+        turnout for a metre on each side of their crossing.
     """
 
     max_candidates: int = 24
@@ -75,6 +82,7 @@ class MatchConfig:
     min_wire_width_mm: float = CONTACT_WIRE_WIDTH_MM[0]
     wire_radius_mm: float = 0.25 * (CONTACT_WIRE_WIDTH_MM[0] + CONTACT_WIRE_WIDTH_MM[1])
     min_separation_mm: float = 30.0
+    level_separation_mm: float = 20.0
 
     def cameras_needed(self, cameras: int) -> int:
         if self.min_cameras is not None:

@@ -114,7 +114,7 @@ def _match(
     matches = _triangulate_matches(cameras, candidates, scan, slot, sigma_px, config, needed)
     matches = replace(matches, cameras=matches.cameras + support)
     if not (config.two_view and needed > 2):
-        return _separate(matches, config.min_separation_mm)
+        return _separate(matches, config)
     # step 6: two-view points of the detections left unused that saw a face, in scans that
     # have some in two cameras at least (a wire missed by one camera while another is blind)
     used = np.zeros(u.shape, dtype=bool)
@@ -129,7 +129,7 @@ def _match(
     free_u = np.where(used | ~with_face, np.nan, u)
     rows = np.flatnonzero(np.isfinite(free_u).any(axis=2).sum(axis=1) >= 2)
     if not rows.shape[0]:
-        return _separate(matches, config.min_separation_mm)
+        return _separate(matches, config)
     pairs_of = _enumerate(
         geometry,
         free_u[rows],
@@ -163,7 +163,7 @@ def _match(
             for f in Matches.__dataclass_fields__
         }
     )
-    return _separate(merged.take(np.argsort(merged.scan, kind="stable")), config.min_separation_mm)
+    return _separate(merged.take(np.argsort(merged.scan, kind="stable")), config)
 
 
 _FACE_MISMATCH = 9.0
@@ -220,12 +220,17 @@ def _two_view_agreement(
     return replace(hypotheses, chi2=chi2)
 
 
-def _separate(matches: Matches, min_separation_mm: float) -> Matches:
-    """Drop the weaker of two points of a scan closer than ``min_separation_mm``.
+def _separate(matches: Matches, config: MatchConfig) -> Matches:
+    """Drop the weaker of two points of a scan closer than ``min_separation_mm``, unless they
+    lie side by side, level, ``level_separation_mm`` or more apart across.
 
     Two wires that close touch, and then no camera tells them apart: two points there are
-    one wire seen twice, once through a merged silhouette's centre or face. The stronger
-    is kept: verified first, then more cameras, then the smaller reprojection RMS.
+    one wire seen twice, once through a merged silhouette's centre or face, or the wire and
+    what rests on it (a crossing's pipe). But a turnout's wires meet at one height: two
+    verified points side by side, a height apart under half their distance across, are two
+    wires once their axes are ``level_separation_mm`` apart (the widest wire and the blur:
+    each camera sees them apart); two-view points there are as likely the ghosts of both. The
+    stronger is kept: verified first, then more cameras, then the smaller reprojection RMS.
     ``matches`` is sorted by scan.
     """
     m = matches.count
@@ -250,9 +255,14 @@ def _separate(matches: Matches, min_separation_mm: float) -> Matches:
     index = np.minimum(start[:, np.newaxis] + others, m - 1)
     x = np.where(before, ranked.x_mm[index], np.nan)
     z = np.where(before, ranked.z_mm[index], np.nan)
+    across = np.abs(x - ranked.x_mm[:, np.newaxis])
+    height = np.abs(z - ranked.z_mm[:, np.newaxis])
+    verified = ranked.verified[:, np.newaxis] & ranked.verified[index]
     with np.errstate(invalid="ignore"):
-        near = np.hypot(x - ranked.x_mm[:, np.newaxis], z - ranked.z_mm[:, np.newaxis])
-        too_close = np.asarray((near < min_separation_mm).any(axis=1))
+        side_by_side = (across >= config.level_separation_mm) & (height < 0.5 * across)
+        side_by_side &= verified
+        near = np.hypot(across, height) < config.min_separation_mm
+        too_close = np.asarray((near & ~side_by_side).any(axis=1))
     # a point dropped does not suppress others (one level: pairs, the case that occurs);
     # ranked by scan first, the points kept are in scan order
     return ranked.take(~too_close)
