@@ -60,10 +60,10 @@ class MatchConfig:
         thick: two closer than this touch.
     level_separation_mm : float
         Two verified points side by side (a height apart under half their distance across)
-        at least this far apart across are two wires however close (a turnout's, which meet
-        at one height): the widest wire (15 mm) and the blur, within which they make one image
-        (the tracker's ``CROSSING_MM``). ``min_separation_mm`` alone lost both wires of a
-        turnout for a metre on each side of their crossing.
+        at least this far apart across are two wires, even closer than ``min_separation_mm``
+        (a turnout's, which meet at one height): the widest wire (15 mm) and the blur, within
+        which they make one image (the tracker's ``CROSSING_MM``). ``min_separation_mm``
+        alone lost one of a turnout's wires for a metre on each side of their crossing.
     """
 
     max_candidates: int = 24
