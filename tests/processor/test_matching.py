@@ -315,6 +315,39 @@ def test_spurious_candidates_make_few_points(overlap_chunk, rig_cameras) -> None
     assert not np.any(near & (np.abs(s[:, None] - s[None, :]) == 1))
 
 
+def projected_features(
+    cameras, x: np.ndarray, z: np.ndarray, rng: np.random.Generator, half_px=None, polarity=-1
+) -> list[Features]:
+    """Each camera's silhouettes, no face, of the wires at ``x``, ``z`` ``(n, w)`` [mm]: their
+    middles with ``NOISE_PX`` of noise, ``half_px`` wide each side (None: a 12-mm wire's)."""
+    features = []
+    for camera in cameras:
+        u = camera.project(x, z) + rng.normal(0.0, NOISE_PX, x.shape)
+        if half_px is None:
+            half = np.abs(0.5 * camera.project(x + 6.0, z) - 0.5 * camera.project(x - 6.0, z))
+        else:
+            half = np.full(x.shape, float(half_px))
+        s, m = np.nonzero(np.isfinite(u))
+        order = np.lexsort((u[s, m], s))
+        s, uu, hh = s[order], u[s, m][order], half[s, m][order]
+        nan = np.full(s.shape, np.nan)
+        contrast = np.full(s.shape, 0.3)
+        sign = np.full(s.shape, polarity, np.int8)
+        features.append(Features(s, uu, uu - hh, uu + hh, nan, nan, contrast, sign))
+    return features
+
+
+def assert_each_wire_once(matches: Matches, x: np.ndarray, z: np.ndarray) -> None:
+    """Every point within 0.5 mm of a wire at ``x``, ``z`` ``(n, w)``, each wire of each scan
+    once."""
+    distance = np.hypot(
+        x[matches.scan] - matches.x_mm[:, None], z[matches.scan] - matches.z_mm[:, None]
+    )
+    assert np.max(distance.min(axis=1)) < 0.5
+    which = distance.argmin(axis=1)
+    assert np.all(np.bincount(matches.scan * x.shape[1] + which) == 1)
+
+
 def test_twelve_wires_in_view(rig_cameras) -> None:
     """Turnouts and overlaps: the best systems follow 10-12 wires."""
     _names, cameras = rig_cameras
@@ -325,43 +358,10 @@ def test_twelve_wires_in_view(rig_cameras) -> None:
         np.arange(wires) % 3 == 0, 1500.0, np.where(np.arange(wires) % 3 == 1, 1900.0, 2400.0)
     )
     z = z[None, :] + rng.normal(0.0, 20.0, (n, wires))
-    features = []
-    for camera in cameras:
-        u = camera.project(x, z) + rng.normal(0.0, NOISE_PX, (n, wires))
-        s, m = np.nonzero(np.isfinite(u))
-        order = np.lexsort((u[s, m], s))
-        s, uu = s[order], u[s, m][order]
-        nan = np.full(s.shape, np.nan)
-        features.append(
-            Features(
-                s, uu, uu - 12, uu + 12, nan, nan, np.full(s.shape, 0.3), np.ones(s.shape, np.int8)
-            )
-        )
+    features = projected_features(cameras, x, z, rng, half_px=12, polarity=1)
     matches = verified(cameras, pad_candidates(features, n), sigma())
     assert matches.count == n * wires
-    distance = np.hypot(
-        x[matches.scan] - matches.x_mm[:, None], z[matches.scan] - matches.z_mm[:, None]
-    )
-    assert np.max(distance.min(axis=1)) < 0.5
-    which = distance.argmin(axis=1)
-    assert np.all(np.bincount(matches.scan * wires + which) == 1)
-
-
-def crossing_features(cameras, x: np.ndarray, z: np.ndarray, seed: int) -> list[Features]:
-    """Dark silhouettes 12 mm wide, no face, of the wires at ``x``, ``z`` ``(n, w)`` [mm]."""
-    rng = np.random.default_rng(seed)
-    features = []
-    for camera in cameras:
-        u = camera.project(x, z) + rng.normal(0.0, NOISE_PX, x.shape)
-        half = np.abs(0.5 * camera.project(x + 6.0, z) - 0.5 * camera.project(x - 6.0, z))
-        s, m = np.nonzero(np.isfinite(u))
-        uu, hh = u[s, m], half[s, m]
-        nan = np.full(s.shape, np.nan)
-        polarity = -np.ones(s.shape, np.int8)
-        features.append(
-            Features(s, uu, uu - hh, uu + hh, nan, nan, np.full(s.shape, 0.3), polarity)
-        )
-    return features
+    assert_each_wire_once(matches, x, z)
 
 
 def test_two_wires_near_a_crossing_are_both_found(rig_cameras) -> None:
@@ -373,13 +373,10 @@ def test_two_wires_near_a_crossing_are_both_found(rig_cameras) -> None:
     apart = np.linspace(21.0, 40.0, n)
     x = np.stack([-60.0 - 0.5 * apart, -60.0 + 0.5 * apart], axis=1)
     z = np.full((n, 2), 1600.0)
-    matches = verified(cameras, pad_candidates(crossing_features(cameras, x, z, 8), n), sigma())
+    features = projected_features(cameras, x, z, np.random.default_rng(8))
+    matches = verified(cameras, pad_candidates(features, n), sigma())
     assert matches.count == 2 * n
-    distance = np.hypot(
-        x[matches.scan] - matches.x_mm[:, None], z[matches.scan] - matches.z_mm[:, None]
-    )
-    assert np.max(distance.min(axis=1)) < 0.5
-    assert np.all(np.bincount(matches.scan * 2 + distance.argmin(axis=1)) == 1)
+    assert_each_wire_once(matches, x, z)
 
 
 def test_what_rests_on_a_wire_is_one_point_with_it(rig_cameras) -> None:
@@ -389,7 +386,8 @@ def test_what_rests_on_a_wire_is_one_point_with_it(rig_cameras) -> None:
     n = 200
     x = np.stack([np.full(n, -60.0), np.full(n, -55.0)], axis=1)
     z = np.stack([np.full(n, 1600.0), np.full(n, 1620.0)], axis=1)
-    matches = verified(cameras, pad_candidates(crossing_features(cameras, x, z, 9), n), sigma())
+    features = projected_features(cameras, x, z, np.random.default_rng(9))
+    matches = verified(cameras, pad_candidates(features, n), sigma())
     assert np.all(np.bincount(matches.scan, minlength=n) == 1)
 
 
