@@ -515,11 +515,14 @@ def test_two_cameras_pair_what_agrees(rig_cameras) -> None:
     assert np.count_nonzero(on_wire) == n and np.count_nonzero(on_messenger) == n
 
 
-def test_a_clamp_on_a_new_wire_gives_no_position(rig_cameras) -> None:
+@pytest.mark.parametrize("polarity", [-1, 0])
+def test_a_clamp_on_a_new_wire_gives_no_position(rig_cameras, polarity: int) -> None:
     """White daylight, a new wire (no face): at a dropper clamp every camera sees the clamp's
     dark silhouette, 22 mm wide and centred 5 mm above the wire's axis, and the silhouettes
     agree on the clamp's middle. It is no wire's: those scans get no position, not a point
-    5 mm off (which they get when any width is taken for a wire's)."""
+    5 mm off (which they get when any width is taken for a wire's). So also behind the
+    filter (``polarity`` 0: an outline of dark sides and a lit bottom, features setting
+    ``outlines``), where a candidate wider than any wire is objects in line."""
     _names, cameras = rig_cameras
     rng = np.random.default_rng(11)
     n = 60
@@ -536,7 +539,14 @@ def test_a_clamp_on_a_new_wire_gives_no_position(rig_cameras) -> None:
         nan = np.full(n, np.nan)
         features.append(
             Features(
-                np.arange(n), u, u - half, u + half, nan, nan, np.full(n, 0.5), -np.ones(n, np.int8)
+                np.arange(n),
+                u,
+                u - half,
+                u + half,
+                nan,
+                nan,
+                np.full(n, 0.5),
+                np.full(n, polarity, np.int8),
             )
         )
     matches = verified(cameras, pad_candidates(features, n), sigma())

@@ -44,11 +44,11 @@ over the scans of a block:
    wire's silhouettes (its axis; a radius inward of the one edge of its outline where only
    one shows, the radius measured in the block where the outline's edges bound the wire
    from both sides, and steps 2-5 done again with it), with a leave-one-out check that
-   drops a camera whose image the others do not predict. A camera whose dark silhouette is
-   wider than the widest wire (``max_wire_width_mm``) or than the point's other silhouettes
-   sees a clamp on the wire or objects in line: it gives no axis and only a worn face clear
-   inside it, and a point without two cameras left has no position (a new wire at a dropper
-   clamp).
+   drops a camera whose image the others do not predict. A camera whose candidate is wider
+   than the widest wire (``max_wire_width_mm``), whatever its polarity, or whose dark
+   silhouette is wider than the point's other silhouettes sees a clamp on the wire or
+   objects in line: it gives no axis and only a worn face clear inside it, and a point
+   without two cameras left has no position (a new wire at a dropper clamp).
 6. **Two views**: points of two cameras made of the detections left unused, where both saw a
    face, are returned unverified (``Matches.verified``): tracking takes them only where they
    continue a wire it follows (a blind camera and a missed detection at once).

@@ -111,32 +111,43 @@ _PROFILE_SPREAD = 0.05
 """A grooved wire's silhouette differs by up to this fraction of its width between views."""
 
 
-def _bare_silhouettes(
+def _widths_mm(
     pinholes: Sequence[LineScanCamera],
     left_px: FloatArray,
     right_px: FloatArray,
     x_mm: FloatArray,
     z_mm: FloatArray,
-    max_width_mm: float,
-) -> BoolArray:
-    """Whether each camera's dark silhouette of the points is one a bare wire can make.
-
-    Its width across the camera's ray at the point (the camera model's resolution there)
-    must be no more than ``max_width_mm``, nor than the median of the point's silhouettes
-    (the wire's own width: objects in line only widen a dark silhouette) by more than
-    :data:`_PROFILE_SPREAD`, each give or take :data:`_SILHOUETTE_SLACK_PX`. A dropper or
-    registration clamp on the wire, or a messenger or a crossing wire in line with it, make
-    it wider. ``(m, C)`` edges [px] (NaN: no dark silhouette) and ``(m,)`` points [mm];
-    ``(m, C)``, false where a camera has no silhouette or the point is NaN."""
+) -> tuple[FloatArray, FloatArray]:
+    """Each camera's candidate width across its ray at the points [mm] and the resolution
+    there [px/mm] (the camera model's): ``(m, C)`` edges [px] and ``(m,)`` points in,
+    ``(m, C)`` each out, NaN where a camera has no candidate or the point is NaN."""
     px_per_mm = np.empty(left_px.shape)
     for c, camera in enumerate(pinholes):  # a loop per camera, not per point
         _, du_dx, du_dz = _Geometry.of(camera).project(x_mm, z_mm)
         px_per_mm[:, c] = np.hypot(du_dx, du_dz)  # across the ray: u is constant along it
     with np.errstate(invalid="ignore", divide="ignore"):
-        width_mm = (right_px - left_px) / px_per_mm
-        own_mm = (1.0 + _PROFILE_SPREAD) * row_median(width_mm)
-        limit_mm = np.fmin(own_mm, max_width_mm)[:, np.newaxis]
-        return width_mm <= limit_mm + _SILHOUETTE_SLACK_PX / px_per_mm
+        widths: FloatArray = (right_px - left_px) / px_per_mm
+    return widths, px_per_mm
+
+
+def _bare_silhouettes(
+    width_mm: FloatArray, px_per_mm: FloatArray, dark: BoolArray, max_width_mm: float
+) -> BoolArray:
+    """Whether each camera's candidate of the points is one a bare wire can make.
+
+    Its width ``width_mm`` (:func:`_widths_mm`) must be no more than ``max_width_mm``
+    (whatever its polarity: a lit part is narrower than its wire) and, for a dark
+    silhouette (``dark``), no more than the median of the point's dark silhouettes (the
+    wire's own width: objects in line only widen a dark silhouette) by more than
+    :data:`_PROFILE_SPREAD`, each give or take :data:`_SILHOUETTE_SLACK_PX` (at
+    ``px_per_mm``). A dropper or registration clamp on the wire, or a messenger or a
+    crossing wire in line with it, make it wider. ``(m, C)`` each; false where a camera has
+    no candidate or the point is NaN."""
+    with np.errstate(invalid="ignore"):
+        own_mm = (1.0 + _PROFILE_SPREAD) * row_median(np.where(dark, width_mm, np.nan))
+        limit_mm = np.where(dark, np.fmin(own_mm, max_width_mm)[:, np.newaxis], max_width_mm)
+        bare: BoolArray = width_mm <= limit_mm + _SILHOUETTE_SLACK_PX / px_per_mm
+    return bare
 
 
 def _edges(candidates: Candidates, scan: IntArray, slot: IntArray) -> list[FloatArray]:
@@ -261,8 +272,8 @@ def _triangulate_matches(
 ) -> Matches:
     """Step 5: each point from all its cameras (face midpoints where two saw the face).
 
-    A camera whose dark silhouette is wider than a wire can be (:func:`_bare_silhouettes`:
-    a clamp on the wire, objects in line) gives no axis, and a face only clear inside it; a
+    A camera whose candidate is wider than a wire can be (:func:`_bare_silhouettes`: a
+    clamp on the wire, objects in line) gives no axis, and a face only clear inside it; a
     point left with one camera has no position (NaN).
 
     Where a point has a camera to spare, the camera whose image lies furthest outside its
@@ -296,22 +307,14 @@ def _triangulate_matches(
     radius_mm = config.wire_radius_mm if measured is None else measured
     if rows.shape[0]:
         result = _again(result, rows, triangulate(pinholes, ideal[rows], sigma_px=sigma))
-    # a dark silhouette (against a bright sky: the wire's outline) wider than a wire can be
-    # is a clamp on the wire or objects in line: its middle is not the wire's, nor is a
-    # face reaching its edges (a worn face clear inside it is; a lit wire's extent is not
-    # its outline: not judged)
+    # a candidate wider than a wire can be (a dark silhouette, against a bright sky the
+    # wire's outline, also wider than the point's others) is a clamp on the wire or objects
+    # in line: its middle is not the wire's, nor is a face reaching its edges (a worn face
+    # clear inside it is)
     polarity = candidates.polarity[scan[:, np.newaxis], cameras_index, np.maximum(slot, 0)]
     dark = (slot >= 0) & (polarity < 0)
-    wide = np.zeros(dark.shape, dtype=bool)
-    if dark.any():  # none at night or behind the filter
-        wide = dark & ~_bare_silhouettes(
-            pinholes,
-            np.where(dark, left, np.nan),
-            np.where(dark, right, np.nan),
-            result.x_mm,
-            result.z_mm,
-            config.max_wire_width_mm,
-        )
+    width_mm, px_per_mm = _widths_mm(pinholes, left, right, result.x_mm, result.z_mm)
+    wide = (slot >= 0) & ~_bare_silhouettes(width_mm, px_per_mm, dark, config.max_wire_width_mm)
     with np.errstate(invalid="ignore"):
         clear = (face_left - left > _SILHOUETTE_SLACK_PX) & (
             right - face_right > _SILHOUETTE_SLACK_PX
