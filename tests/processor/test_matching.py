@@ -828,3 +828,45 @@ def test_a_wire_whose_outline_shows_on_one_side_is_located_at_its_axis(rig_camer
     np.testing.assert_allclose(matches.radius_mm, radius, atol=0.05)
     distance = np.hypot(matches.x_mm - x_axis, matches.z_mm - z_axis)
     assert np.max(distance) < 0.2
+
+
+def test_each_point_s_radius_is_measured_from_its_dark_silhouettes(rig_cameras) -> None:
+    """By white daylight a new wire's dark silhouettes are its whole outline: their width
+    across the rays is its diameter, which the point carries (its middle, the axis, is
+    lowered by it to the wire's bottom), not the radius assumed (6.35 mm, 1.05 mm off the
+    thinnest and widest wires). A messenger above has its own; a wire seen bright (its lit
+    bottom, at night) or with a face located by it measures none."""
+    _names, cameras = rig_cameras
+    rng = np.random.default_rng(23)
+    n = 40
+    s = np.arange(n)
+    x = np.stack([np.linspace(-200.0, 200.0, n), np.linspace(-100.0, 300.0, n)], axis=1)
+    z = np.stack([np.full(n, 1600.0), np.full(n, 2700.0)], axis=1)
+    radius = np.array([5.3, 7.0])  # an AC-80 contact wire, a messenger of 14 mm
+    polarity = np.where(s < n // 2, -1, 1).astype(np.int8)  # dark, then lit (night)
+    features = []
+    for camera in cameras:
+        u = camera.project(x, z)
+        _, gx, gz = _Geometry.of(camera).project(x, z)
+        half = radius * np.hypot(gx, gz)
+        left = (u - half + rng.normal(0, NOISE_PX, u.shape)).ravel()
+        right = (u + half + rng.normal(0, NOISE_PX, u.shape)).ravel()
+        nan = np.full(2 * n, np.nan)
+        features.append(
+            Features(
+                np.repeat(s, 2),
+                0.5 * (left + right),
+                left,
+                right,
+                nan,
+                nan,
+                np.full(2 * n, 0.3),
+                np.repeat(polarity, 2),
+            )
+        )
+    matches = verified(cameras, pad_candidates(features, n), sigma(), MatchConfig())
+    assert matches.count == 2 * n
+    wire = (matches.z_mm > 2000.0).astype(int)
+    dark = matches.scan < n // 2
+    np.testing.assert_allclose(matches.radius_mm[dark], radius[wire[dark]], atol=0.05)
+    assert np.all(np.isnan(matches.radius_mm[~dark]))

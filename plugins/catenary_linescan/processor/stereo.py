@@ -37,7 +37,8 @@ the block alone: they are the processor's ``stage`` (:class:`LineScanStage`, pic
 ``wire_width_mm``          [min, max] contact wire widths the features look for ([10.6, 14.8]);
                            half their mean is the radius of a wire whose face no two cameras
                            saw (a new wire: its silhouettes' middle is lowered to its bottom by
-                           it): set both to the line's wire width where it has one
+                           it) where its dark silhouettes do not measure it (at night, behind
+                           the filter): set both to the line's wire width where it has one
 ``min_track_m``            shortest track taken for a wire (``tracking.MIN_TRACK_M``)
 ``max_gap_m``              longest gap a track bridges (1.0)
 ``messenger_gap_mm``       height above the lowest contact wire of a messenger (200)

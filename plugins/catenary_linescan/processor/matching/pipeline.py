@@ -48,15 +48,20 @@ def match(
     """
     config = config or MatchConfig()
     matches = _match(cameras, candidates, sigma_px, config)
+    if not candidates.outline_side.any():  # the radius moves no image: no need
+        return matches
     measured = matches.radius_mm[np.isfinite(matches.radius_mm)]
-    if measured.shape[0] and abs(measured[0] - config.wire_radius_mm) > _RADIUS_AGAIN_MM:
-        matches = _match(cameras, candidates, sigma_px, replace(config, wire_radius_mm=measured[0]))
+    if measured.shape[0]:
+        radius = float(np.median(measured))
+        if abs(radius - config.wire_radius_mm) > _RADIUS_AGAIN_MM:
+            matches = _match(cameras, candidates, sigma_px, replace(config, wire_radius_mm=radius))
     return matches
 
 
 _RADIUS_AGAIN_MM = 0.1
-"""The matching is done again with the wire's radius that step 5 measured in the block
-(:func:`.triangulate._outline_axes`) where it differs from the one assumed by more than this:
+"""The matching is done again with the wire's radius that step 5 measured in the block (the
+median of its points': :func:`.triangulate._outline_axes`, :func:`.triangulate._silhouette_radii`)
+where it differs from the one assumed by more than this:
 candidates whose outline shows on one side only are imaged at the axis a radius inward of
 it, and a radius a millimetre off keeps a third camera from confirming their points."""
 

@@ -46,9 +46,10 @@ class Matches:
         cameras whose detections no verified point uses: unverifiable alone, they can only
         continue a wire's track where it predicts them (:mod:`..tracking`).
     radius_mm : ndarray, shape (m,)
-        The wire's radius [mm] measured in the block from the points that cameras saw the
-        outline of on opposite sides only (:func:`_outline_axes`), the same for every point;
-        NaN: not measured (the processor's ``wire_radius_mm`` holds).
+        The wire's radius [mm] measured at the point from its bare dark silhouettes
+        (:func:`_silhouette_radii`), else in the block from the points that cameras saw the
+        outline of on opposite sides only (:func:`_outline_axes`); NaN: not measured (the
+        processor's ``wire_radius_mm`` holds).
     """
 
     scan: IntArray
@@ -148,6 +149,26 @@ def _bare_silhouettes(
         limit_mm = np.where(dark, np.fmin(own_mm, max_width_mm)[:, np.newaxis], max_width_mm)
         bare: BoolArray = width_mm <= limit_mm + _SILHOUETTE_SLACK_PX / px_per_mm
     return bare
+
+
+def _silhouette_radii(
+    width_mm: FloatArray, dark: BoolArray, from_face: BoolArray, config: MatchConfig
+) -> FloatArray:
+    """Each point's radius [mm] measured from its bare dark silhouettes (against a bright sky
+    a round wire's outline is its diameter across the ray, worn or not): half the median of
+    its widths ``width_mm`` ``(m, C)`` in the cameras ``dark`` ``(m, C)`` marks, for the
+    points located by their silhouettes (not ``from_face``) that two such cameras see and
+    whose diameter is a contact wire's (``config``'s narrowest to widest wire, within
+    :data:`_PROFILE_SPREAD`: clipped to them); ``(m,)``, NaN elsewhere."""
+    diameter = row_median(np.where(dark, width_mm, np.nan))
+    lo, hi = config.min_wire_width_mm, config.max_wire_width_mm
+    with np.errstate(invalid="ignore"):
+        measured = ~from_face & (np.count_nonzero(dark & np.isfinite(width_mm), axis=1) >= 2)
+        measured &= (diameter >= (1.0 - _PROFILE_SPREAD) * lo) & (
+            diameter <= (1.0 + _PROFILE_SPREAD) * hi
+        )
+    radii: FloatArray = np.where(measured, 0.5 * np.clip(diameter, lo, hi), np.nan)
+    return radii
 
 
 def _edges(candidates: Candidates, scan: IntArray, slot: IntArray) -> list[FloatArray]:
@@ -315,6 +336,7 @@ def _triangulate_matches(
     dark = (slot >= 0) & (polarity < 0)
     width_mm, px_per_mm = _widths_mm(pinholes, left, right, result.x_mm, result.z_mm)
     wide = (slot >= 0) & ~_bare_silhouettes(width_mm, px_per_mm, dark, config.max_wire_width_mm)
+    radii = _silhouette_radii(width_mm, dark & ~wide, from_face, config)
     with np.errstate(invalid="ignore"):
         clear = (face_left - left > _SILHOUETTE_SLACK_PX) & (
             right - face_right > _SILHOUETTE_SLACK_PX
@@ -386,5 +408,5 @@ def _triangulate_matches(
         sigma_x_mm=result.sigma_x_mm,
         sigma_z_mm=result.sigma_z_mm,
         verified=np.ones(scan.shape[0], dtype=bool),
-        radius_mm=np.full(scan.shape[0], np.nan if measured is None else measured),
+        radius_mm=np.where(np.isfinite(radii), radii, np.nan if measured is None else measured),
     )
