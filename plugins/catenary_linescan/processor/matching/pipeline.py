@@ -94,6 +94,28 @@ def _match(
     hypotheses = _enumerate(
         geometry, u, (left, right), polarity, outline, sigma_px, config, span, needed, pairs
     )
+    # a camera's centre is its face's where it saw one (the contact point), else its
+    # silhouette's middle (the axis, a radius above): in scans where some cameras saw a
+    # face and others with candidates none, points are also sought by the middles
+    with_face = np.isfinite(candidates.face_left_px).any(axis=2)  # (n, C)
+    faceless = np.isfinite(u).any(axis=2) & ~with_face
+    mixed = np.flatnonzero(with_face.any(axis=1) & faceless.any(axis=1))
+    if needed > 2 and mixed.shape[0]:
+        middles = 0.5 * (left[mixed] + right[mixed])
+        edges = (left[mixed], right[mixed])
+        axes = _enumerate(
+            geometry,
+            middles,
+            edges,
+            polarity[mixed],
+            outline[mixed],
+            sigma_px,
+            config,
+            span,
+            needed,
+            pairs,
+        )
+        hypotheses = _Hypotheses.concatenate([hypotheses, replace(axes, scan=mixed[axes.scan])])
     if needed == 2:
         hypotheses = _two_view_agreement(cameras, candidates, hypotheses, sigma_px, config)
 
