@@ -549,6 +549,24 @@ def test_a_face_between_blurred_silhouette_edges_on_a_fine_rig(face: float) -> N
     assert np.sqrt(np.mean(edges**2)) < 0.25
 
 
+@pytest.mark.parametrize("blur", [1.0, 3.3, 5.0])
+def test_a_new_wire_s_silhouette_edges_under_a_wide_blur(blur: float) -> None:
+    """White daylight on a 16,384-px rig: an unworn wire's dark silhouette, its edges blurred
+    over up to 20 px. Its boundaries are where the line crosses half its plateau, not half
+    the level a few pixels inside the ramp's first significant pixel (2-4 px outward: the
+    silhouette read 4-7 % wide, and the wire's radius measured from it 0.2-0.5 mm large)."""
+    phases = np.linspace(0.0, 1.0, 16, endpoint=False)
+    lines = np.stack(
+        [silhouette(990 + p, 1110 + p, 0.0, 0.0, 12.0, width=2048, blur=blur) for p in phases]
+    )
+    config = FeatureConfig.from_resolution((10.6, 14.8), (0.06, 0.18))
+    f = extract_features(np.rint(lines * 200.0).astype(np.uint16), 16, config=config)
+    np.testing.assert_array_equal(f.scan, np.arange(phases.shape[0]))
+    assert not np.any(f.has_face)
+    np.testing.assert_allclose(f.left_px, 990 + phases, atol=0.05)
+    np.testing.assert_allclose(f.right_px, 1110 + phases, atol=0.05)
+
+
 @pytest.mark.parametrize("gap", [3.8, 5.0])
 @pytest.mark.parametrize("blur", [2.0, 2.5])
 def test_a_face_edge_near_its_silhouette_under_a_wide_blur(gap: float, blur: float) -> None:

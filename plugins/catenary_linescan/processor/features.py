@@ -145,6 +145,8 @@ _SKY_PX = 4
 """Pixels beside a candidate that measure the sky next to it."""
 _EDGE_PX = 4
 """Pixels inside a boundary over which its level is taken (a blurred step's rise)."""
+_DARK_RISE = 3
+"""A dark silhouette's boundary level is taken over this many ``sharp_px`` inside it."""
 _TEXTURE = 3.0
 """A boundary's level is at least this multiple of the sky's texture beside the wire (the
 largest deviation of its sky pixels from the ramp between them): texture grows with the
@@ -751,28 +753,28 @@ def _sharp(
     return sharp
 
 
-def _boundary(dev: np.ndarray, k0: np.ndarray, direction: int) -> FloatArray:
+def _boundary(dev: np.ndarray, k0: np.ndarray, direction: int, rise: int = _EDGE_PX) -> FloatArray:
     """Sub-pixel boundaries from transposed sub-windows ``dev`` ``(count, m)`` of absolute
-    deviations: where ``dev`` crosses half of its level over the ``_EDGE_PX`` pixels inside
+    deviations: where ``dev`` crosses half of its level over the ``rise`` pixels inside
     the outermost significant pixel ``k0`` ``(m,)``; ``direction`` +1 for a left boundary
     (the object lies at higher indices), -1 for a right one. Sub-window coordinates."""
     count, m = dev.shape
-    # pixels k0 - direction (outside), k0, ..., k0 + _EDGE_PX * direction (inside)
-    first = np.clip(k0 - 1 if direction > 0 else k0 - _EDGE_PX, 0, count - _EDGE_PX - 2)
-    steps = np.arange(_EDGE_PX + 2)[:, None]
-    seg = dev.ravel()[(first[None, :] + steps) * m + np.arange(m)]  # (_EDGE_PX + 2, m)
+    # pixels k0 - direction (outside), k0, ..., k0 + rise * direction (inside)
+    first = np.clip(k0 - 1 if direction > 0 else k0 - rise, 0, count - rise - 2)
+    steps = np.arange(rise + 2)[:, None]
+    seg = dev.ravel()[(first[None, :] + steps) * m + np.arange(m)]  # (rise + 2, m)
     if direction < 0:
         seg = seg[::-1]
     level = 0.5 * seg[1:].max(axis=0)
     # the first pixel from k0 inward at or above the level; the crossing lies before it
-    weight = np.arange(_EDGE_PX + 1, 0, -1)[:, None]
-    reach = _EDGE_PX + 2 - ((seg[1:] >= level) * weight).max(axis=0)
+    weight = np.arange(rise + 1, 0, -1)[:, None]
+    reach = rise + 2 - ((seg[1:] >= level) * weight).max(axis=0)
     cols = np.arange(m)
     inside = seg[reach, cols]
     outside = seg[reach - 1, cols]
     frac = np.clip((level - outside) / np.maximum(inside - outside, 1e-6), 0.0, 1.0)
     boundary: FloatArray = (
-        first + reach - 1 + frac if direction > 0 else first + _EDGE_PX + 1 - (reach - 1) - frac
+        first + reach - 1 + frac if direction > 0 else first + rise + 1 - (reach - 1) - frac
     )
     return boundary
 
@@ -1293,7 +1295,7 @@ def _boundaries(
     texture *= np.float32(_TEXTURE)
     np.minimum(texture, np.float32(cfg.detect_rel) * np.tile(peak, 2), out=texture)
     level2 = np.maximum(np.concatenate([level, level]), texture)
-    count = w.margin + 2 * cfg.bin_px
+    count = w.margin + max(2 * cfg.bin_px, _DARK_RISE * cfg.sharp_px + 2)
     k = np.arange(count)[:, None]
     dev = np.empty((count, 2 * m), dtype=np.float32)
     dev[:, :m] = w.xs4.reshape(m, w.stride)[:, :count].T
@@ -1317,6 +1319,13 @@ def _boundaries(
     k0 = count - (above * weight).max(axis=0).astype(np.intp)  # the first above (count: none)
     inside = (k0 >= first_k) & (k0 < count)
     edge = _boundary(dev, np.minimum(k0, count - 1), +1)
+    # a dark silhouette occludes the sky: its level is its plateau, past a blurred step's
+    # whole rise from its first significant pixel (the blur's reach, ``sharp_px``, each side
+    # of the edge, and as much again for a blur wider than the one ``sharp_px`` was set for)
+    rise = _DARK_RISE * cfg.sharp_px
+    dark = np.flatnonzero(np.tile((contrast.polarity < 0) & ~contrast.mixed, 2))
+    if rise > _EDGE_PX and dark.shape[0]:
+        edge[dark] = _boundary(dev[:, dark], np.minimum(k0[dark], count - 1), +1, rise)
     left = edge[:m]
     right = w.own - 1 - edge[m:]
     width = right - left
