@@ -95,13 +95,16 @@ def _match(
         geometry, u, (left, right), polarity, outline, sigma_px, config, span, needed, pairs
     )
     # a camera's centre is its face's where it saw one (the contact point), else its
-    # silhouette's middle (the axis, a radius above): in scans where some cameras saw a
-    # face and others with candidates none, points are also sought by the middles
+    # silhouette's middle (a dark one's is the axis, a radius above): in scans where some
+    # cameras saw a face and others with candidates none, points are also sought by the
+    # middles of the dark silhouettes (a lit part's middle, at night or behind the filter,
+    # is no axis)
     with_face = np.isfinite(candidates.face_left_px).any(axis=2)  # (n, C)
     faceless = np.isfinite(u).any(axis=2) & ~with_face
     mixed = np.flatnonzero(with_face.any(axis=1) & faceless.any(axis=1))
     if needed > 2 and mixed.shape[0]:
-        middles = 0.5 * (left[mixed] + right[mixed])
+        dark = candidates.polarity[mixed] < 0
+        middles = np.where(dark, 0.5 * (left[mixed] + right[mixed]), np.nan)
         edges = (left[mixed], right[mixed])
         axes = _enumerate(
             geometry,
