@@ -44,7 +44,9 @@ Step 1 of the line-scan stereovision processor (the paper, section 3.2, steps 1-
    deviation crosses half of its level just inside the outermost significant pixel
    (``boundary_k`` noise deviations, ``boundary_rel`` of the peak, and three times the sky's
    texture: the largest deviation of the sky pixels from the ramp between the two sides,
-   capped at ``detect_rel`` of the peak, beyond which it is a neighbour's edge). Candidates
+   capped at ``detect_rel`` of the peak, beyond which it is a neighbour's edge): over a
+   blurred step's rise (4 px), and for a dark silhouette, which occludes the sky, over three
+   ``sharp_px`` (its plateau under a blur of several pixels: a 16k line's). Candidates
    wider than a wire can be, or narrower and without a face (``wire_width_px``,
    ``width_tolerance``: the expected width at the measuring range), are dropped. A boundary
    is the wire's outline (it occludes the sky there) when, just inside it (pixels 1 to

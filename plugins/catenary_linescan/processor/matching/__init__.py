@@ -47,8 +47,9 @@ over the scans of a block:
    drops a camera whose image the others do not predict. A camera whose candidate is wider
    than the widest wire (``max_wire_width_mm``), whatever its polarity, or whose dark
    silhouette is wider than the point's other silhouettes sees a clamp on the wire or
-   objects in line: it gives no axis and only a worn face clear inside it, and a point
-   without two cameras left has no position (a new wire at a dropper clamp).
+   objects in line: it gives no axis, a dark one only a worn face clear inside it (a lit
+   part's face is its own), and a point without two cameras left has no position (a new
+   wire at a dropper clamp).
 6. **Two views**: points of two cameras made of the detections left unused, where both saw a
    face, are returned unverified (``Matches.verified``): tracking takes them only where they
    continue a wire it follows (a blind camera and a missed detection at once).

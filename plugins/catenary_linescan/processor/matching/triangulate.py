@@ -294,8 +294,8 @@ def _triangulate_matches(
     """Step 5: each point from all its cameras (face midpoints where two saw the face).
 
     A camera whose candidate is wider than a wire can be (:func:`_bare_silhouettes`: a
-    clamp on the wire, objects in line) gives no axis, and a face only clear inside it; a
-    point left with one camera has no position (NaN).
+    clamp on the wire, objects in line) gives no axis, and a dark one a face only clear
+    inside it; a point left with one camera has no position (NaN).
 
     Where a point has a camera to spare, the camera whose image lies furthest outside its
     confirmation window from the point the other cameras give (leave-one-out) is dropped
@@ -330,8 +330,9 @@ def _triangulate_matches(
         result = _again(result, rows, triangulate(pinholes, ideal[rows], sigma_px=sigma))
     # a candidate wider than a wire can be (a dark silhouette, against a bright sky the
     # wire's outline, also wider than the point's others) is a clamp on the wire or objects
-    # in line: its middle is not the wire's, nor is a face reaching its edges (a worn face
-    # clear inside it is)
+    # in line: its middle is not the wire's, nor is a face reaching a dark one's edges (a worn
+    # face clear inside it is; a lit part's face, at night or behind the filter, is its own,
+    # and often reaches its end)
     polarity = candidates.polarity[scan[:, np.newaxis], cameras_index, np.maximum(slot, 0)]
     dark = (slot >= 0) & (polarity < 0)
     width_mm, px_per_mm = _widths_mm(pinholes, left, right, result.x_mm, result.z_mm)
@@ -341,7 +342,7 @@ def _triangulate_matches(
         clear = (face_left - left > _SILHOUETTE_SLACK_PX) & (
             right - face_right > _SILHOUETTE_SLACK_PX
         )
-    lost = wide & ~clear
+    lost = wide & dark & ~clear
     rows = np.flatnonzero(wide.any(axis=1))
     if rows.shape[0]:
         slot = np.where(lost, -1, slot)
