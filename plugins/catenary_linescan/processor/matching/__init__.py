@@ -9,7 +9,10 @@ over the scans of a block:
    combinations of their candidates with the closed form (eq. 9-10), keeping points in front
    of both cameras and inside the plausible volume above the roof. Not every pair is needed:
    only pairs meeting every set of ``min_cameras`` cameras (:func:`covering_pairs`: two of
-   the six for four cameras and three needed).
+   the six for four cameras and three needed). A candidate's centre is its face's where it
+   has one (the contact point), else its silhouette's middle: in scans where some cameras
+   saw a face and others none, the pairs are also taken from the dark silhouettes' middles
+   (the axis: a face's centre and a middle, a radius apart, never confirm each other).
 3. **Verify** (steps 2-3): re-project each point into every other camera ``c`` and look up the
    nearest candidate there (one ``searchsorted`` over the block). It confirms the point when
    it lies within ``max(k · σ, floor_px)`` of the re-projection, where ``σ`` combines camera
