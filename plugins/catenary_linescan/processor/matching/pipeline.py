@@ -99,9 +99,9 @@ def _match(
     # cameras saw a face and others with candidates none, points are also sought by the
     # middles of the dark silhouettes (a lit part's middle, at night or behind the filter,
     # is no axis)
-    with_face = np.isfinite(candidates.face_left_px).any(axis=2)  # (n, C)
-    faceless = np.isfinite(u).any(axis=2) & ~with_face
-    mixed = np.flatnonzero(with_face.any(axis=1) & faceless.any(axis=1))
+    with_face: NDArray[np.bool_] = np.any(np.isfinite(candidates.face_left_px), axis=2)  # (n, C)
+    faceless: NDArray[np.bool_] = np.any(np.isfinite(u), axis=2) & ~with_face
+    mixed = np.flatnonzero(np.any(with_face, axis=1) & np.any(faceless, axis=1))
     if needed > 2 and mixed.shape[0]:
         dark = candidates.polarity[mixed] < 0
         middles = np.where(dark, 0.5 * (left[mixed] + right[mixed]), np.nan)
