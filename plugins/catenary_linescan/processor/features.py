@@ -1320,14 +1320,20 @@ def _boundaries(
     weight = (count - k).astype(np.min_scalar_type(count))
     k0 = count - (above * weight).max(axis=0).astype(np.intp)  # the first above (count: none)
     inside = (k0 >= first_k) & (k0 < count)
-    edge = _boundary(dev, np.minimum(k0, count - 1), +1)
+    start = np.minimum(k0, count - 1)
     # a dark silhouette occludes the sky: its level is its plateau, past a blurred step's
     # whole rise from its first significant pixel (the blur's reach, ``sharp_px``, each side
     # of the edge, and as much again for a blur wider than the one ``sharp_px`` was set for)
     rise = _DARK_RISE * cfg.sharp_px
-    dark = np.flatnonzero(np.tile((contrast.polarity < 0) & ~contrast.mixed, 2))
-    if rise > _EDGE_PX and dark.shape[0]:
-        edge[dark] = _boundary(dev[:, dark], np.minimum(k0[dark], count - 1), +1, rise)
+    dark = np.tile((contrast.polarity < 0) & ~contrast.mixed, 2)
+    edge: FloatArray
+    if rise > _EDGE_PX and dark.any():
+        edge = np.empty(2 * m)
+        edge[dark] = _boundary(dev[:, dark], start[dark], +1, rise)
+        if not dark.all():
+            edge[~dark] = _boundary(dev[:, ~dark], start[~dark], +1)
+    else:
+        edge = _boundary(dev, start, +1)
     left = edge[:m]
     right = w.own - 1 - edge[m:]
     width = right - left

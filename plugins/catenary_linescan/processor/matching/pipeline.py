@@ -99,9 +99,10 @@ def _match(
     # cameras saw a face and others with candidates none, points are also sought by the
     # middles of the dark silhouettes (a lit part's middle, at night or behind the filter,
     # is no axis)
-    with_face: NDArray[np.bool_] = np.any(np.isfinite(candidates.face_left_px), axis=2)  # (n, C)
-    faceless: NDArray[np.bool_] = np.any(np.isfinite(u), axis=2) & ~with_face
-    mixed = np.flatnonzero(np.any(with_face, axis=1) & np.any(faceless, axis=1))
+    with_face = np.isfinite(candidates.face_left_px) & np.isfinite(candidates.face_right_px)
+    face_seen: NDArray[np.bool_] = np.any(with_face, axis=2)  # (n, C)
+    faceless: NDArray[np.bool_] = np.any(np.isfinite(u), axis=2) & ~face_seen
+    mixed = np.flatnonzero(np.any(face_seen, axis=1) & np.any(faceless, axis=1))
     if needed > 2 and mixed.shape[0]:
         dark = candidates.polarity[mixed] < 0
         middles = np.where(dark, 0.5 * (left[mixed] + right[mixed]), np.nan)
@@ -155,7 +156,6 @@ def _match(
         slot[slot >= 0],
     ] = True
     # only detections with a face can make a two-view point (below)
-    with_face = np.isfinite(candidates.face_left_px) & np.isfinite(candidates.face_right_px)
     free_u = np.where(used | ~with_face, np.nan, u)
     rows = np.flatnonzero(np.isfinite(free_u).any(axis=2).sum(axis=1) >= 2)
     if not rows.shape[0]:
