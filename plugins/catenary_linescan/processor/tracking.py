@@ -40,7 +40,10 @@ the fittings are not (a dropper is 5 mm thick along the track, a steady arm 26 m
    rest of its track while it stays alone: a messenger first seen, or seen with another,
    where its contact wire was lost; and a point with another track within ``CROSSING_MM``
    across at its height (a turnout's crossing: the cameras see one image of both wires,
-   located between them);
+   located between them), unless the cameras agreed on a worn face there (``face_mm``)
+   and the point lies within ``CROSSING_LINE_MM`` of the line its wire's points on one side
+   give, their faces as wide as its own within ``CROSSING_WIDTH_MM`` (that wire's own face,
+   seen alone);
 5. **numbers** each track at its first contact point (0, 1, ... in order of appearance) and
    keeps the number through the run: a track that ended up to ``reidentify_m`` before and
    near where the new one starts hands its number over;
@@ -68,6 +71,7 @@ from numpy.typing import NDArray
 from catenary.arrays import FloatArray, IntArray, row_median
 
 __all__ = [
+    "CROSSING_COLUMN",
     "MIN_TRACK_M",
     "UNCERTAIN_COLUMN",
     "TrackedPoints",
@@ -80,6 +84,12 @@ UNCERTAIN_COLUMN = "selection_uncertain"
 """Column of :class:`TrackedPoints` set where the selection cannot tell that a point is the
 contact wire: a lower wire's points beneath its track, its track alone in view after it
 was seen above another wire, or another wire crossing it (step 4 of the module docstring)."""
+
+CROSSING_COLUMN = "at_crossing"
+"""Column of :class:`TrackedPoints` set where another wire's track runs within
+``CROSSING_MM`` across at the point's height (a turnout's crossing): a point there that is
+one wire's (step 4) is that wire's position, but the other wire's image may border its
+face, and the face's width is not the wire's alone."""
 
 LOWER_WIRE_POINTS = 5
 """Fewest verified points beneath a track that show a lower wire there (``MIN_TRACK_POINTS``:
@@ -98,6 +108,18 @@ RESTING_ACROSS_MM = 30.0
 CROSSING_MM = 20.0
 """Distance across [mm] within which two wires at one height (a turnout's crossing) make one
 image in the cameras: the widest wire (15 mm) and the blur. Neither is located there."""
+
+CROSSING_LINE_MM = 1.0
+"""Farthest a point at a crossing may lie from the line its wire's points on one side give
+(``x`` and ``z``) to be that wire's own [mm]: half the 2-mm accuracy of a height or a
+stagger. An image of both wires lies half their distance from each: off the line of a side
+whose points are one wire's, and a side that holds it and one wire's points is no line."""
+
+CROSSING_WIDTH_MM = 0.1
+"""Farthest the face widths of a crossing's point and of the points of its wire it is checked
+against may differ [mm] (about 0.1 mm of residual thickness near the wear limit): where the
+wires lie within a millimetre of each other, one track may hold both, whose faces differ,
+or the image of both faces, wider than either."""
 
 
 CONTACT_GRADIENT_MM_PER_M = 25.0
@@ -356,9 +378,10 @@ class _Store:
     z_mm: FloatArray
     track: IntArray
     verified: NDArray[np.bool_]
+    face_mm: FloatArray
     columns: dict[str, NDArray[np.generic]]
 
-    _ARRAYS = ("scan", "position_m", "x_mm", "z_mm", "track", "verified")
+    _ARRAYS = ("scan", "position_m", "x_mm", "z_mm", "track", "verified", "face_mm")
 
     @classmethod
     def empty(cls) -> _Store:
@@ -369,6 +392,7 @@ class _Store:
             np.zeros(0),
             np.zeros(0, np.int64),
             np.zeros(0, bool),
+            np.zeros(0),
             {},
         )
 
@@ -412,8 +436,9 @@ class WireTracker:
         # verified point released last
         self._last_released: dict[int, tuple[int, float, float, float]] = {}
         self._last_verified: dict[int, tuple[int, float, float, float]] = {}
-        # per wire number, the position, x and z of the last NEIGHBOURS points released
-        self._recent: dict[int, tuple[FloatArray, FloatArray, FloatArray]] = {}
+        # per wire number, the position, x, z and face width of the last NEIGHBOURS points
+        # released
+        self._recent: dict[int, tuple[FloatArray, ...]] = {}
         # verified points released within max_gap_m (their position, height and track): step 4
         self._behind = _Store.empty()
         self._released_m = -np.inf  # position of the last point released
@@ -446,6 +471,7 @@ class WireTracker:
         columns: Mapping[str, NDArray[np.generic]] | None = None,
         *,
         verified: NDArray[np.bool_] | None = None,
+        face_mm: FloatArray | None = None,
         last_scan: int | None = None,
         last_position_m: float | None = None,
     ) -> TrackedPoints:
@@ -465,6 +491,10 @@ class WireTracker:
             Which points the matching verified (default: all). A chain of unverified points
             (two cameras only) never starts a track: it only continues one whose end
             predicts it within the tight link gate, and is dropped otherwise.
+        face_mm : ndarray, shape (m,), optional
+            Width of the worn face the cameras agreed on at each point [mm] (0 or NaN: none;
+            default: none): one wire's own, at a turnout's crossing, where the point lies on
+            its wire's line (step 4).
         last_scan, last_position_m : optional
             The block's last scan and its position, when it may have no point there: the
             tracker then knows how far the run has gone.
@@ -486,14 +516,15 @@ class WireTracker:
         checked = (
             np.ones(scan.shape, dtype=bool) if verified is None else np.asarray(verified, bool)
         )
+        face = np.zeros(scan.shape) if face_mm is None else np.asarray(face_mm, np.float64)
         order = np.lexsort((x, scan))
         scan, position, x, z = scan[order], position[order], x[order], z[order]
-        checked = checked[order]
+        checked, face = checked[order], face[order]
         cols = {k: v[order] for k, v in cols.items()}
         if scan.shape[0] and scan[0] <= self._last_scan:
             raise ValueError(f"scan {scan[0]} pushed after scan {self._last_scan}")
         if scan.shape[0]:
-            self._add(scan, position, x, z, checked, cols)
+            self._add(scan, position, x, z, checked, face, cols)
         if last_scan is not None:
             self._last_scan = max(self._last_scan, int(last_scan))
         if last_position_m is not None:
@@ -516,6 +547,7 @@ class WireTracker:
         x: FloatArray,
         z: FloatArray,
         verified: NDArray[np.bool_],
+        face_mm: FloatArray,
         cols: dict[str, NDArray[np.generic]],
     ) -> None:
         config = self.config
@@ -545,6 +577,7 @@ class WireTracker:
                 z[kept],
                 track_id[kept],
                 verified[kept],
+                face_mm[kept],
                 {k: v[kept] for k, v in cols.items()},
             )
         )
@@ -847,9 +880,8 @@ class WireTracker:
         above, company, crossing = self._above_a_wire(released, tracks)
         contact = wire_track & ~above & (released.z_mm <= self.config.max_height_mm)
         above_lost = contact & self._above_a_lost_wire(released, tracks)
-        uncertain = contact & (crossing | self._lower_wire_beneath(released, contact, tracks))
-        uncertain |= above_lost
-        uncertain |= contact & self._above_before(released, wire_track, above | above_lost, company)
+        lower_beneath = self._lower_wire_beneath(released, contact, tracks)
+        above_before = self._above_before(released, wire_track, above | above_lost, company)
         # numbers, for tracks whose first contact point this is (in order of appearance)
         wire = np.full(released.scan.shape[0], -1, dtype=np.int64)
         rows = np.flatnonzero(contact)
@@ -869,6 +901,9 @@ class WireTracker:
                 if track.id not in self._open:  # it ended before its first point was out
                     self._lost.append(track)
             wire[released.track == track_id] = track.wire
+        faced = released.face_mm > 0.0  # NaN: faces seen, not agreed on
+        one_wire = self._on_its_line(released, wire, contact & crossing & faced, tracks)
+        uncertain = contact & ((crossing & ~one_wire) | lower_beneath | above_before) | above_lost
         keep = contact & (wire >= 0)
         keep &= self._on_track(released)
         keep &= self._consistent(released, wire, keep, tracks)
@@ -882,6 +917,7 @@ class WireTracker:
             columns={
                 **{k: v[keep] for k, v in released.columns.items()},
                 UNCERTAIN_COLUMN: uncertain[keep],
+                CROSSING_COLUMN: crossing[keep],
             },
         )
 
@@ -926,6 +962,7 @@ class WireTracker:
                 height[done],
                 track[done],
                 np.ones(int(done.sum()), bool),
+                np.zeros(int(done.sum())),
                 {},
             )
         return beneath
@@ -1129,18 +1166,9 @@ class WireTracker:
         the wire's tracks is a neighbour, so that the result does not depend on where the
         run is cut; remembers each wire's last points for the next call."""
         ok = np.ones(released.scan.shape[0], dtype=bool)
-        store = self._store
-        names = ("position_m", "x_mm", "z_mm")
         for number in np.unique(wire[candidate]).tolist():  # one step per wire
-            mine = np.flatnonzero(wire == number)
-            own = [t for t, track in tracks.items() if track.wire == number]
-            ahead = np.flatnonzero(np.isin(store.track, own))[:NEIGHBOURS]
-            behind = self._recent.get(number, (np.zeros(0),) * 3)
-            p, x, z = (
-                np.concatenate([old, getattr(released, n)[mine], getattr(store, n)[ahead]])
-                for old, n in zip(behind, names, strict=True)
-            )
-            rows = behind[0].shape[0] + np.arange(mine.shape[0])
+            mine, (p, x, z, _), rows = self._wire_points(released, wire, number, tracks)
+            behind = self._recent.get(number, (np.zeros(0),) * len(_NEIGHBOUR_VALUES))
             sides = [_side(p, rows, sign) for sign in (-1, 1)]
             check = candidate[mine] & np.all([near.sum(axis=1) >= 2 for _, near in sides], 0)
             if check.any():
@@ -1157,14 +1185,51 @@ class WireTracker:
                     expected = before[k] + t * (after[k] - before[k])
                     off |= np.abs(v[at] - expected) > tolerance
                 ok[mine[check]] = ~off
-            self._recent[number] = tuple(  # type: ignore[assignment]
+            self._recent[number] = tuple(
                 np.concatenate([old, getattr(released, n)[mine]])[-NEIGHBOURS:]
-                for old, n in zip(behind, names, strict=True)
+                for old, n in zip(behind, _NEIGHBOUR_VALUES, strict=True)
             )
         if released.scan.shape[0]:  # forget wires no later point can have as neighbours
             edge = float(released.position_m[-1]) - NEIGHBOUR_M
-            for number in [w for w, (p, _, _) in self._recent.items() if p[-1] < edge]:
+            for number in [w for w, (p, *_) in self._recent.items() if p[-1] < edge]:
                 del self._recent[number]
+        return ok
+
+    def _wire_points(
+        self, released: _Store, wire: IntArray, number: int, tracks: Mapping[int, _Track]
+    ) -> tuple[IntArray, tuple[FloatArray, ...], IntArray]:
+        """Wire ``number``'s points about the released ones, in order along the track: the
+        last ``NEIGHBOURS`` released before (remembered), the released ones (``mine``, rows
+        of ``released``) and the first ``NEIGHBOURS`` held ahead. Returns ``mine``, their
+        ``_NEIGHBOUR_VALUES`` (position [m], ``x``, ``z`` and face width [mm]), and where
+        ``mine`` lie in those."""
+        mine = np.flatnonzero(wire == number)
+        own = [t for t, track in tracks.items() if track.wire == number]
+        ahead = np.flatnonzero(np.isin(self._store.track, own))[:NEIGHBOURS]
+        behind = self._recent.get(number, (np.zeros(0),) * len(_NEIGHBOUR_VALUES))
+        values = tuple(
+            np.concatenate([old, getattr(released, n)[mine], getattr(self._store, n)[ahead]])
+            for old, n in zip(behind, _NEIGHBOUR_VALUES, strict=True)
+        )
+        return mine, values, behind[0].shape[0] + np.arange(mine.shape[0])
+
+    def _on_its_line(
+        self,
+        released: _Store,
+        wire: IntArray,
+        candidate: NDArray[np.bool_],
+        tracks: Mapping[int, _Track],
+    ) -> NDArray[np.bool_]:
+        """Whether each ``candidate`` released point lies on its wire's line (others: false;
+        :func:`_on_a_side_s_line`), the line of its wire's points on one side of it or the
+        other: where a track goes on along the other wire past a crossing, the points of each
+        wire have their own wire's points on one side, and an image of both wires, between
+        them, lies on neither side's line."""
+        ok = np.zeros(released.scan.shape[0], dtype=bool)
+        for number in np.unique(wire[candidate]).tolist():  # one step per wire
+            mine, (p, x, z, face), rows = self._wire_points(released, wire, number, tracks)
+            check = candidate[mine]
+            ok[mine[check]] = _on_a_side_s_line(p, x, z, face, rows[check])
         return ok
 
     def _remember(self, released: _Store, tracks: Mapping[int, _Track]) -> None:
@@ -1206,6 +1271,10 @@ class WireTracker:
                 del book[track_id]
 
 
+_NEIGHBOUR_VALUES = ("position_m", "x_mm", "z_mm", "face_mm")
+"""What a point is checked against of its wire's neighbours (``WireTracker._wire_points``)."""
+
+
 def _side(p: FloatArray, rows: IntArray, sign: int) -> tuple[IntArray, NDArray[np.bool_]]:
     """Each row's ``NEIGHBOURS`` neighbours on one side (``sign``: -1 before, 1 after):
     their indices into ``p`` (positions in order, clipped to it) ``(m, NEIGHBOURS)``, and
@@ -1214,6 +1283,39 @@ def _side(p: FloatArray, rows: IntArray, sign: int) -> tuple[IntArray, NDArray[n
     index = np.clip(wanted, 0, p.shape[0] - 1)
     near = (wanted == index) & (np.abs(p[index] - p[rows][:, None]) <= NEIGHBOUR_M)
     return index, near
+
+
+def _on_a_side_s_line(
+    p: FloatArray, x: FloatArray, z: FloatArray, face: FloatArray, at: IntArray
+) -> NDArray[np.bool_]:
+    """Whether the points ``at`` (indices into the wire's points ``p`` [m], ``x``, ``z`` and
+    face widths ``face`` [mm], in order along the track) lie on the straight line, in ``x``
+    and in ``z``, that the ``NEIGHBOURS`` points within ``NEIGHBOUR_M`` on one side of them
+    give: three of them at least, each within half ``CROSSING_LINE_MM`` of the line fitted
+    to them by least squares (one wire's points) and with a face as wide as the point's
+    within ``CROSSING_WIDTH_MM`` (one wire's face), the point within ``CROSSING_LINE_MM`` of
+    the line."""
+    fits = np.zeros(at.shape[0], dtype=bool)
+    for sign in (-1, 1):
+        index, near = _side(p, at, sign)
+        weight = near.astype(np.float64)
+        count = weight.sum(axis=1)
+        with np.errstate(invalid="ignore"):
+            alike = np.abs(face[index] - face[at][:, None]) <= CROSSING_WIDTH_MM
+        side = (count >= 3) & np.all(alike | ~near, axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            p_mean = (weight * p[index]).sum(axis=1) / count
+        dp = np.where(near, p[index] - p_mean[:, None], 0.0)
+        for v in (x, z):
+            with np.errstate(invalid="ignore", divide="ignore"):
+                v_mean = (weight * v[index]).sum(axis=1) / count
+                slope = (dp * (v[index] - v_mean[:, None])).sum(axis=1) / (dp * dp).sum(axis=1)
+            line = v_mean[:, None] + slope[:, None] * dp  # at the neighbours
+            scatter = np.where(near, np.abs(v[index] - line), 0.0).max(axis=1)
+            off = np.abs(v_mean + slope * (p[at] - p_mean) - v[at])
+            side &= (scatter <= 0.5 * CROSSING_LINE_MM) & (off <= CROSSING_LINE_MM)
+        fits |= side
+    return fits
 
 
 def _side_medians(
