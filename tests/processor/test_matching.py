@@ -379,6 +379,27 @@ def test_two_wires_near_a_crossing_are_both_found(rig_cameras) -> None:
     assert_each_wire_once(matches, x, z)
 
 
+def test_two_worn_wires_nearer_a_crossing_are_both_found(rig_cameras) -> None:
+    """A turnout's worn wires at one height 14-20 mm apart: each camera sees the two faces
+    apart (5 mm wide, 9-15 mm between their middles), and two faces are two wires once their
+    axes are the narrowest wire's width apart: level wires lie no closer."""
+    _names, cameras = rig_cameras
+    n = 200
+    apart = np.linspace(14.0, 20.0, n)
+    x = np.stack([-60.0 - 0.5 * apart, -60.0 + 0.5 * apart], axis=1)
+    z = np.full((n, 2), 1600.0)
+    features = []
+    for f in projected_features(cameras, x, z, np.random.default_rng(10)):
+        half_face = (f.right_px - f.left_px) / 2.0 * 2.5 / 6.0
+        face = replace(
+            f, face_left_px=f.centre_px - half_face, face_right_px=f.centre_px + half_face
+        )
+        features.append(face)
+    matches = verified(cameras, pad_candidates(features, n), sigma())
+    assert matches.count == 2 * n
+    assert_each_wire_once(matches, x, z)
+
+
 def test_what_rests_on_a_wire_is_one_point_with_it(rig_cameras) -> None:
     """A crossing's pipe clamped above the wire, 20 mm higher and 5 mm across: one wire seen
     twice for the matching (the tracker tells a wire from what rests on it)."""

@@ -63,7 +63,9 @@ class MatchConfig:
         at least this far apart across are two wires, even closer than ``min_separation_mm``
         (a turnout's, which meet at one height): the widest wire (15 mm) and the blur, within
         which they make one image (the tracker's ``CROSSING_MM``). ``min_separation_mm``
-        alone lost one of a turnout's wires for a metre on each side of their crossing.
+        alone lost one of a turnout's wires for a metre on each side of their crossing. Two
+        points located by their worn faces are two wires from ``min_wire_width_mm`` apart:
+        the cameras saw two faces.
     """
 
     max_candidates: int = 24

@@ -259,8 +259,10 @@ def _separate(matches: Matches, config: MatchConfig) -> Matches:
     what rests on it (a crossing's pipe). But a turnout's wires meet at one height: two
     verified points side by side, a height apart under half their distance across, are two
     wires once their axes are ``level_separation_mm`` apart (the widest wire and the blur:
-    each camera sees them apart); two-view points there are as likely the ghosts of both. The
-    stronger is kept: verified first, then more cameras, then the smaller reprojection RMS.
+    each camera sees them apart), or ``min_wire_width_mm`` where both were located by their
+    faces (two faces the cameras saw apart; level wires lie no closer); two-view points there
+    are as likely the ghosts of both. The stronger is kept: verified first, then more
+    cameras, then the smaller reprojection RMS.
     ``matches`` is sorted by scan.
     """
     m = matches.count
@@ -288,8 +290,10 @@ def _separate(matches: Matches, config: MatchConfig) -> Matches:
     across = np.abs(x - ranked.x_mm[:, np.newaxis])
     height = np.abs(z - ranked.z_mm[:, np.newaxis])
     verified = ranked.verified[:, np.newaxis] & ranked.verified[index]
+    faces = ranked.from_face[:, np.newaxis] & ranked.from_face[index]
+    apart = np.where(faces, config.min_wire_width_mm, config.level_separation_mm)
     with np.errstate(invalid="ignore"):
-        side_by_side = (across >= config.level_separation_mm) & (height < 0.5 * across)
+        side_by_side = (across >= apart) & (height < 0.5 * across)
         side_by_side &= verified
         near = np.hypot(across, height) < config.min_separation_mm
         too_close = np.asarray((near & ~side_by_side).any(axis=1))
