@@ -66,3 +66,15 @@ def test_a_stretch_that_had_a_ghost_has_no_false_wire(
     row = stretch(sweep, seed, scene, scans)
     assert row["false_wires"] == 0 and row["false_rows"] == 0, sweep.row_line(row)
     assert row["recall"] > 0.99, sweep.row_line(row)
+
+
+@pytest.mark.slow
+def test_a_turnout_s_crossing_reports_each_wire_s_face_seen_alone(sweep: ModuleType) -> None:
+    # day behind the filter, five 4k cameras, 4 mm faces, wires crossing at 3°: within 20 mm
+    # of each other the matching found one wire by its face in nearly every scan, and kept
+    # one of two faces 11-19 mm apart; every point there was uncertain (1.7 % of this
+    # stretch's rows, recall 94.8 %). Where the wires touch the cameras see one image of
+    # both: recall cannot reach 99.5 % on so short a stretch, the other targets are met.
+    row = stretch(sweep, 0, 6, (5300, 5900))
+    assert row["recall"] > 0.98 and row["uncertain_share"] < 0.005, sweep.row_line(row)
+    assert row["fails"] == "recall", sweep.row_line(row)
