@@ -340,13 +340,13 @@ def test_a_crossing_keeps_both_wires_and_drops_the_pipe_on_them() -> None:
         assert np.unique(wire[truth == label]).shape == (1,)
 
 
-@pytest.mark.parametrize("block", [1024, 333])
-def test_a_crossing_s_point_on_one_wire_s_line_is_that_wire_s(block: int) -> None:
-    # a turnout's worn wire crosses the main one at 3° at its height (sweep scene 6): within
-    # CROSSING_MM the matching gives one point per scan, located by the face the cameras
-    # agreed on: the main wire's, then an image of both (between them) for three scans, then
-    # the branch's. Points by faces scatter by about 0.1 mm.
-    stream = Stream(9000, seed=17)
+def crossing_stream(seed: int, image_mm: tuple[float, float]) -> tuple[Stream, np.ndarray]:
+    """A turnout's wire (label 1) crossing the main one (0) at 3° at its height, points by
+    faces (0.1 mm of scatter): where the branch lies ``image_mm`` across the main wire (from,
+    to) the matching gives one point per scan on both, their middle (2); the main wire's
+    before, the branch's after. Returns the stream and, per scan, whether the wires lie
+    within ``CROSSING_MM`` of each other."""
+    stream = Stream(9000, seed=seed)
     p = stream.position
     main = np.full(p.shape, -80.0)
     branch = -80.0 + (p - 75.0) * np.tan(np.radians(3.0)) * 1000.0
@@ -354,11 +354,20 @@ def test_a_crossing_s_point_on_one_wire_s_line_is_that_wire_s(block: int) -> Non
     height = np.full(p.shape, 1700.0)
     close = np.abs(across) < CROSSING_MM
     seen = np.abs(branch) < 600.0
-    both = close & (across > 6.0) & (across <= 8.7)
+    image = (across >= image_mm[0]) & (across < image_mm[1])
     face = (0.1, 0.1)
-    stream.wire(0, main, height, ~close | (across <= 6.0), noise_mm=face)
-    stream.wire(1, branch, height, seen & (~close | (across > 8.7)), noise_mm=face)
-    stream.wire(2, 0.5 * (main + branch), height, both, miss=0.0, noise_mm=face)
+    stream.wire(0, main, height, ~close | (across < image_mm[0]), noise_mm=face)
+    stream.wire(1, branch, height, seen & (~close | (across >= image_mm[1])), noise_mm=face)
+    stream.wire(2, 0.5 * (main + branch), height, image, miss=0.0, noise_mm=face)
+    return stream, close
+
+
+@pytest.mark.parametrize("block", [1024, 333])
+def test_a_crossing_s_point_on_one_wire_s_line_is_that_wire_s(block: int) -> None:
+    # (sweep scene 6) within CROSSING_MM one point per scan, located by the face the cameras
+    # agreed on: the main wire's, an image of both 6-8.7 mm from the main wire (three scans),
+    # then the branch's
+    stream, close = crossing_stream(17, (6.0, 8.7))
     faces = {0: 5.0, 1: 3.0, 2: 5.0}  # the image of both: one of the faces, or wider
     scan, _, truth, _, _, uncertain = run(stream, block, uncertain_rows=True, faces=faces)
     assert np.all(uncertain[truth == 2])  # the image of both wires
@@ -371,22 +380,10 @@ def test_a_crossing_s_point_on_one_wire_s_line_is_that_wire_s(block: int) -> Non
 
 
 def test_the_image_of_both_faces_where_crossing_wires_touch_is_uncertain() -> None:
-    # wires crossing at 3°, within 1.3 mm of each other over 3 scans: there the matching
-    # gives one point per scan on both (their middle), whose face is both faces (7 mm: the
-    # wires' own are 5 and 3 mm), on the line of the points on either side
-    stream = Stream(9000, seed=19)
-    p = stream.position
-    main = np.full(p.shape, -80.0)
-    branch = -80.0 + (p - 75.0) * np.tan(np.radians(3.0)) * 1000.0
-    across = branch - main
-    height = np.full(p.shape, 1700.0)
-    close = np.abs(across) < CROSSING_MM
-    seen = np.abs(branch) < 600.0
-    touch = np.abs(across) < 1.3
-    face = (0.1, 0.1)
-    stream.wire(0, main, height, ~close | (across <= -1.3), noise_mm=face)
-    stream.wire(1, branch, height, seen & (~close | (across >= 1.3)), noise_mm=face)
-    stream.wire(2, 0.5 * (main + branch), height, touch, miss=0.0, noise_mm=face)
+    # within 1.3 mm of each other (three scans) the image of both wires is on the line of
+    # the points on either side, and its face is both faces (7 mm: the wires' own are 5 and
+    # 3 mm)
+    stream, close = crossing_stream(19, (-1.3, 1.3))
     faces = {0: 5.0, 1: 3.0, 2: 7.0}
     scan, _, truth, _, _, uncertain = run(stream, 1024, uncertain_rows=True, faces=faces)
     assert np.count_nonzero(truth == 2) >= 2
