@@ -516,7 +516,6 @@ def test_the_trackers_selection_uncertain_column_reaches_the_observations(flag) 
     """The tracker marks rows it cannot decide are the contact wire with a column of that
     name; a tracker that gives none leaves every row certain."""
     columns = {
-        "wear_width_mm": np.array([5.0, 6.0, 7.0]),
         "cameras": np.array([3, 4, 3]),
         "reprojection_rms_px": np.zeros(3),
     }
@@ -528,6 +527,7 @@ def test_the_trackers_selection_uncertain_column_reaches_the_observations(flag) 
         position_m=np.array([0.1, 0.2, 0.2]),
         x_mm=np.array([-10.0, -9.0, 300.0]),
         z_mm=np.array([1500.0, 1500.0, 2700.0]),
+        face_mm=np.array([5.0, 6.0, 7.0]),
         columns=columns,
     )
     obs = _observations(points)

@@ -82,13 +82,7 @@ from .matching import (
     pad_candidates,
 )
 from .matching.evidence import unseen_in_lines
-from .tracking import (
-    CROSSING_COLUMN,
-    UNCERTAIN_COLUMN,
-    TrackedPoints,
-    TrackingConfig,
-    WireTracker,
-)
+from .tracking import UNCERTAIN_COLUMN, TrackedPoints, TrackingConfig, WireTracker
 
 __all__ = [
     "LineScanProcessor",
@@ -205,18 +199,16 @@ def empty_observations() -> WireObservations:
 
 def _observations(points: TrackedPoints) -> WireObservations:
     """The tracker's released points as observations; ``selection_uncertain`` from the
-    tracker's column of that name where it gives one, else all false. A point at a turnout's
-    crossing has no width (``tracking.CROSSING_COLUMN``: the other wire's image may border
-    its face)."""
+    tracker's column of that name where it gives one, else all false; the width is the
+    tracker's ``face_mm`` (none at a turnout's crossing)."""
     columns = points.columns
     uncertain = columns.get(UNCERTAIN_COLUMN)
-    crossing = np.asarray(columns.get(CROSSING_COLUMN, False), dtype=bool)
     return WireObservations(
         scan=points.scan,
         wire=points.wire,
         x_roof_mm=points.x_mm,
         z_roof_mm=points.z_mm,
-        wear_width_mm=np.where(crossing, np.nan, np.asarray(columns["wear_width_mm"], np.float64)),
+        wear_width_mm=points.face_mm,
         cameras=np.asarray(columns["cameras"], dtype=np.int64),
         reprojection_rms_px=np.asarray(columns["reprojection_rms_px"], dtype=np.float64),
         selection_uncertain=np.zeros(points.rows, dtype=bool)
@@ -362,7 +354,6 @@ class LineScanProcessor:
             staged.x_mm,
             staged.z_mm,
             {
-                "wear_width_mm": staged.wear_width_mm,
                 "cameras": staged.cameras,
                 "reprojection_rms_px": staged.reprojection_rms_px,
             },

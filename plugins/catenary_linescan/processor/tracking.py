@@ -71,7 +71,6 @@ from numpy.typing import NDArray
 from catenary.arrays import FloatArray, IntArray, row_median
 
 __all__ = [
-    "CROSSING_COLUMN",
     "MIN_TRACK_M",
     "UNCERTAIN_COLUMN",
     "TrackedPoints",
@@ -84,12 +83,6 @@ UNCERTAIN_COLUMN = "selection_uncertain"
 """Column of :class:`TrackedPoints` set where the selection cannot tell that a point is the
 contact wire: a lower wire's points beneath its track, its track alone in view after it
 was seen above another wire, or another wire crossing it (step 4 of the module docstring)."""
-
-CROSSING_COLUMN = "at_crossing"
-"""Column of :class:`TrackedPoints` set where another wire's track runs within
-``CROSSING_MM`` across at the point's height (a turnout's crossing): a point there that is
-one wire's (step 4) is that wire's position, but the other wire's image may border its
-face, and the face's width is not the wire's alone."""
 
 LOWER_WIRE_POINTS = 5
 """Fewest verified points beneath a track that show a lower wire there (``MIN_TRACK_POINTS``:
@@ -224,8 +217,11 @@ class TrackingConfig:
 class TrackedPoints:
     """Points released by the tracker, ``m`` rows sorted by scan, then by ``x``.
 
-    ``scan`` is the run's scan index, ``wire`` the wire number; ``columns`` carries the
-    caller's per-point values (as pushed) through.
+    ``scan`` is the run's scan index, ``wire`` the wire number; ``face_mm`` the face width
+    pushed [mm], NaN where another wire's track runs within ``CROSSING_MM`` across at the
+    point's height (a turnout's crossing: a point there that is one wire's, step 4, is that
+    wire's position, but the other wire's image may border its face); ``columns`` carries
+    the caller's per-point values (as pushed) through.
     """
 
     scan: IntArray
@@ -233,6 +229,7 @@ class TrackedPoints:
     position_m: FloatArray
     x_mm: FloatArray
     z_mm: FloatArray
+    face_mm: FloatArray
     columns: dict[str, NDArray[np.generic]] = field(default_factory=dict)
 
     @property
@@ -914,10 +911,10 @@ class WireTracker:
             position_m=released.position_m[keep],
             x_mm=released.x_mm[keep],
             z_mm=released.z_mm[keep],
+            face_mm=np.where(crossing, np.nan, released.face_mm)[keep],
             columns={
                 **{k: v[keep] for k, v in released.columns.items()},
                 UNCERTAIN_COLUMN: uncertain[keep],
-                CROSSING_COLUMN: crossing[keep],
             },
         )
 
