@@ -44,9 +44,9 @@ def unsure_tracker(monkeypatch: pytest.MonkeyPatch) -> None:
     def flagged(self: WireTracker, *, final: bool) -> TrackedPoints:
         points = release(self, final=final)
         unsure = (points.position_m >= UNSURE_M[0]) & (points.position_m < UNSURE_M[1])
-        width = np.where(unsure, UNSURE_WIDTH_MM, points.columns["wear_width_mm"])
-        columns = {**points.columns, "selection_uncertain": unsure, "wear_width_mm": width}
-        return replace(points, columns=columns)
+        width = np.where(unsure, UNSURE_WIDTH_MM, points.face_mm)
+        columns = {**points.columns, "selection_uncertain": unsure}
+        return replace(points, face_mm=width, columns=columns)
 
     monkeypatch.setattr(WireTracker, "_release", flagged)
 
