@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import faulthandler
+import gc
 import multiprocessing
 import queue
 import re
@@ -83,9 +84,16 @@ def close_all(fakes: dict[str, FakeCamera]) -> None:
 
 @pytest.fixture
 def cameras(genicam: Path) -> Iterator[dict[str, FakeCamera]]:
+    """The four fake cameras, with the worker's heap collected and frozen (``gc.freeze``)
+    while they run: they fill their frames in this process, Python's lock held, so that a full
+    collection of a worker's heap after many tests stalls them all (2.8 s for 22 million
+    objects here, which made the reader name a camera silent for ``timeout_s``; CI once)."""
+    gc.collect()
+    gc.freeze()
     fakes = fake_cameras(genicam)
     yield fakes
     close_all(fakes)
+    gc.unfreeze()
 
 
 def settings(**extra: object) -> dict[str, object]:
