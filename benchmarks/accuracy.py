@@ -33,6 +33,7 @@ within 2 mm; recall 99.5 %; no false wire; at most 0.5 % of the rows uncertain.
     .venv/bin/python benchmarks/accuracy.py --no-screen     # without the along-track screen
     .venv/bin/python benchmarks/accuracy.py --sensor-noise-mm 0.5 --sensor-rate-hz 100
     .venv/bin/python benchmarks/accuracy.py --vehicle-filter-hz 0   # sensors unsmoothed
+    .venv/bin/python benchmarks/accuracy.py --cases limit-filter --lighting night
 """
 
 from __future__ import annotations
@@ -67,6 +68,7 @@ from catenary_linescan.simulator import (
     parse_settings,
 )
 from catenary_linescan.simulator.captures import write_captures
+from catenary_linescan.simulator.radiometry import CONDITIONS
 from catenary_linescan.simulator.scene import generate_scene
 from catenary_wiretypes import load_profiles
 
@@ -196,9 +198,10 @@ def calibrated_rig(workdir: Path, sim_rig: SimRig | None = None, *, seed: int = 
     return rig_from_reports(sim_rig.vehicle, reports, source=captures.name)
 
 
-def simulation(case: Case, quick: bool, sensors: dict[str, float] | None = None) -> Simulation:
-    """The case's simulation; ``sensors``: ``sensor_noise_mm``, ``sensor_rate_hz`` that differ."""
-    settings = {"length_m": 150.0, **case.settings, **(sensors or {})}
+def simulation(case: Case, quick: bool, changed: dict[str, Any] | None = None) -> Simulation:
+    """The case's simulation; ``changed``: simulation settings that differ for every case
+    (``sensor_noise_mm``, ``sensor_rate_hz``, ``lighting``)."""
+    settings = {"length_m": 150.0, **case.settings, **(changed or {})}
     if quick:
         settings["length_m"] = min(settings["length_m"], 150.0 if settings.get("overlap") else 60.0)
     return build_simulation(settings, case.scene)
@@ -259,10 +262,10 @@ def run_case(
     quick: bool,
     screen: bool = True,
     *,
-    sensors: dict[str, float] | None = None,
+    changed: dict[str, Any] | None = None,
     filter_hz: float = DEFAULT_FILTER_HZ,
 ) -> dict[str, Any]:
-    result = measure(simulation(case, quick, sensors), rig, screen, filter_hz=filter_hz)
+    result = measure(simulation(case, quick, changed), rig, screen, filter_hz=filter_hz)
     result.update(case=case.name, note=case.note)
     return result
 
@@ -470,17 +473,23 @@ def main(argv: list[str] | None = None) -> int:
         "--sensor-rate-hz", type=float, help="displacement sensor rate (default: simulator's)"
     )
     parser.add_argument(
+        "--lighting",
+        choices=CONDITIONS,
+        help="every case in this light instead of its own (what the light alone does)",
+    )
+    parser.add_argument(
         "--vehicle-filter-hz",
         type=float,
         default=DEFAULT_FILTER_HZ,
         help=f"the sensors' zero-phase low-pass, 0: off (default {DEFAULT_FILTER_HZ:g})",
     )
     args = parser.parse_args(argv)
-    sensors = {
+    changed = {
         key: value
         for key, value in (
             ("sensor_noise_mm", args.sensor_noise_mm),
             ("sensor_rate_hz", args.sensor_rate_hz),
+            ("lighting", args.lighting),
         )
         if value is not None
     }
@@ -499,7 +508,7 @@ def main(argv: list[str] | None = None) -> int:
             rig,
             args.quick,
             not args.no_screen,
-            sensors=sensors,
+            changed=changed,
             filter_hz=args.vehicle_filter_hz,
         )
         results.append(result)

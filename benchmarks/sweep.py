@@ -296,7 +296,9 @@ def camera_report(
     ``right_p50``, ``right_p90`` (absolute errors of the found candidates' silhouette edges
     [px]: at night those of the wire's lit part), ``faces`` (of those, how many show a face
     wider than 1 px), ``faces_found`` (share of them whose candidate has a face) and
-    ``face_p50``, ``face_p95`` (absolute errors of the face edges [px])."""
+    ``face_p50``, ``face_p95`` (absolute errors of the face edges [px]) and ``face_outward``
+    (their median signed outward [px]: positive, the face reads wide; a bias the absolute
+    errors hide, as near the wear limit behind the filter, where the edges read inward)."""
     settings = scenario.settings()
     with tempfile.TemporaryDirectory() as tmp:
         rig = calibrated_rig(Path(tmp), settings["rig"])
@@ -322,8 +324,9 @@ def camera_report(
         )
         found = np.abs(centre) < half
         faces = found & (face_true > 0)
-        face_errors = np.abs(np.concatenate([face_l[faces], face_r[faces]]))
-        face_errors = face_errors[np.isfinite(face_errors)]
+        outward = np.concatenate([-face_l[faces], face_r[faces]])
+        outward = outward[np.isfinite(outward)]
+        face_errors = np.abs(outward)
 
         def quantile(values: FloatArray, q: float) -> float:
             values = np.abs(values)
@@ -341,6 +344,7 @@ def camera_report(
             "faces_found": float(np.mean(face_found[faces])) if np.any(faces) else math.nan,
             "face_p50": quantile(face_errors, 50),
             "face_p95": quantile(face_errors, 95),
+            "face_outward": float(np.median(outward)) if outward.shape[0] else math.nan,
         }
     return report
 
@@ -389,7 +393,7 @@ def camera_lines(report: dict[str, dict[str, float]]) -> list[str]:
         f" (width {r['width_px']:.1f} px); edges |error| px left {r['left_p50']:.2f}/"
         f"{r['left_p90']:.2f}, right {r['right_p50']:.2f}/{r['right_p90']:.2f} (p50/p90); "
         f"faces {r['faces']:.0f}, found {100 * r['faces_found']:.1f} %, edges |error| px "
-        f"{r['face_p50']:.2f}/{r['face_p95']:.2f} (p50/p95)"
+        f"{r['face_p50']:.2f}/{r['face_p95']:.2f} (p50/p95), outward {r['face_outward']:+.2f}"
         for name, r in report.items()
     ]
 
