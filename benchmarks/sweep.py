@@ -326,7 +326,6 @@ def camera_report(
         faces = found & (face_true > 0)
         outward = np.concatenate([-face_l[faces], face_r[faces]])
         outward = outward[np.isfinite(outward)]
-        face_errors = np.abs(outward)
 
         def quantile(values: FloatArray, q: float) -> float:
             values = np.abs(values)
@@ -342,8 +341,8 @@ def camera_report(
             "right_p90": quantile(right[found], 90),
             "faces": float(np.count_nonzero(faces)),
             "faces_found": float(np.mean(face_found[faces])) if np.any(faces) else math.nan,
-            "face_p50": quantile(face_errors, 50),
-            "face_p95": quantile(face_errors, 95),
+            "face_p50": quantile(outward, 50),
+            "face_p95": quantile(outward, 95),
             "face_outward": float(np.median(outward)) if outward.shape[0] else math.nan,
         }
     return report
