@@ -34,6 +34,7 @@ within 2 mm; recall 99.5 %; no false wire; at most 0.5 % of the rows uncertain.
     .venv/bin/python benchmarks/accuracy.py --sensor-noise-mm 0.5 --sensor-rate-hz 100
     .venv/bin/python benchmarks/accuracy.py --vehicle-filter-hz 0   # sensors unsmoothed
     .venv/bin/python benchmarks/accuracy.py --cases limit-filter --lighting night
+    .venv/bin/python benchmarks/accuracy.py --outlines      # an unworn wire's outline on one side
 """
 
 from __future__ import annotations
@@ -264,8 +265,11 @@ def run_case(
     *,
     changed: dict[str, Any] | None = None,
     filter_hz: float = DEFAULT_FILTER_HZ,
+    config: ProcessorConfig | None = None,
 ) -> dict[str, Any]:
-    result = measure(simulation(case, quick, changed), rig, screen, filter_hz=filter_hz)
+    result = measure(
+        simulation(case, quick, changed), rig, screen, filter_hz=filter_hz, config=config
+    )
     result.update(case=case.name, note=case.note)
     return result
 
@@ -478,6 +482,11 @@ def main(argv: list[str] | None = None) -> int:
         help="every case in this light instead of its own (what the light alone does)",
     )
     parser.add_argument(
+        "--outlines",
+        action="store_true",
+        help="the processor setting outlines = true (an unworn wire's outline on one side)",
+    )
+    parser.add_argument(
         "--vehicle-filter-hz",
         type=float,
         default=DEFAULT_FILTER_HZ,
@@ -510,6 +519,7 @@ def main(argv: list[str] | None = None) -> int:
             not args.no_screen,
             changed=changed,
             filter_hz=args.vehicle_filter_hz,
+            config=ProcessorConfig(outlines=True) if args.outlines else None,
         )
         results.append(result)
         print(
