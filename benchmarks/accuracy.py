@@ -461,6 +461,20 @@ def print_table(results: list[dict[str, Any]]) -> None:
     )
 
 
+def add_outlines_option(parser: argparse.ArgumentParser) -> None:
+    """The benchmarks' ``--outlines``: the processor setting on (:func:`processor_config`)."""
+    parser.add_argument(
+        "--outlines",
+        action="store_true",
+        help="the processor setting outlines = true (an unworn wire's outline on one side)",
+    )
+
+
+def processor_config(args: argparse.Namespace) -> ProcessorConfig | None:
+    """The processor settings the parsed options ask for (None: the defaults)."""
+    return ProcessorConfig(outlines=True) if args.outlines else None
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="*", help="case names (default: all)")
@@ -481,11 +495,7 @@ def main(argv: list[str] | None = None) -> int:
         choices=CONDITIONS,
         help="every case in this light instead of its own (what the light alone does)",
     )
-    parser.add_argument(
-        "--outlines",
-        action="store_true",
-        help="the processor setting outlines = true (an unworn wire's outline on one side)",
-    )
+    add_outlines_option(parser)
     parser.add_argument(
         "--vehicle-filter-hz",
         type=float,
@@ -519,7 +529,7 @@ def main(argv: list[str] | None = None) -> int:
             not args.no_screen,
             changed=changed,
             filter_hz=args.vehicle_filter_hz,
-            config=ProcessorConfig(outlines=True) if args.outlines else None,
+            config=processor_config(args),
         )
         results.append(result)
         print(

@@ -55,7 +55,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from accuracy import build_simulation, calibrated_rig, measure
+from accuracy import (
+    add_outlines_option,
+    build_simulation,
+    calibrated_rig,
+    measure,
+    processor_config,
+)
 
 from catenary.arrays import BoolArray, FloatArray
 from catenary_linescan.processor.features import extract_features
@@ -542,13 +548,9 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="with --scene: each camera's features against the truth (no scoring)",
     )
-    parser.add_argument(
-        "--outlines",
-        action="store_true",
-        help="the processor setting outlines = true (an unworn wire's outline on one side)",
-    )
+    add_outlines_option(parser)
     args = parser.parse_args(argv)
-    config = ProcessorConfig(outlines=True) if args.outlines else None
+    config = processor_config(args)
     if args.scans is not None and args.scene is None:
         parser.error("--scans needs --scene")
     if args.cameras:
