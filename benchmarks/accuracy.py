@@ -287,8 +287,11 @@ def measure(
     None: the defaults) and score it (:func:`evaluate`); adds ``scans``, ``seconds``
     (simulation and processing), ``processing_s`` and the processor's ``table_check``.
     ``scans`` ``(first, stop)``: only the chunks that hold those scans (a stretch of the
-    run, as a regression test cuts it)."""
+    run, as a regression test cuts it). The processor is told the scene's wire type, as
+    ``catenary process`` tells it the run's."""
+    wire_type = {p.name: p for p in load_profiles()}[sim.scene.wire_type.name]
     processor = LineScanProcessor(rig, config)
+    processor.expect_wire_types([wire_type])
     got = Collected()
     bit_depth = {c.name: c.bit_depth for c in sim.rig.cameras}
     started = time.perf_counter()
@@ -325,7 +328,6 @@ def measure(
     got.add_rows(processor.finish())
     processing += time.perf_counter() - t0
     contact = np.array([w.contact for w in sim.scene.wires])
-    wire_type = {p.name: p for p in load_profiles()}[sim.scene.wire_type.name]
     result = evaluate(got, contact, wire_type, rig, screen)
     result.update(
         scans=sum(p.shape[0] for p in got.truth["position_m"]),

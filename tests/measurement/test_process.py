@@ -36,6 +36,7 @@ from sqlalchemy.orm import Session
 from catenary.cli import cli
 from catenary.config import Settings
 from catenary.domain import WireObservations
+from catenary.errors import UserError
 from catenary.measurement.evidence import evidence_key
 from catenary.measurement.process import (
     LEGACY_SCRATCH_AGE_S,
@@ -386,6 +387,33 @@ def test_a_failure_half_way_leaves_no_run_and_no_file(
     assert "Input/output error" in one_line_error(result)
     assert stored(database) == (0, 0)
     assert not any((isolated_environment / "samples").iterdir())
+
+
+def test_the_processor_is_told_the_runs_wire_types_before_any_scan(
+    simulated: Simulated, database: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from catenary_linescan.processor import stereo
+
+    told: list[list[str]] = []
+    scans: list[int] = []
+    process_block = stereo.LineScanProcessor.process_staged
+
+    def expect_wire_types(self, wire_types):
+        told.append([wire.name for wire in wire_types])
+        raise UserError("told")  # stop here: the test needs no measurement
+
+    def counting(self, block, staged):
+        scans.append(block.first_scan)
+        return process_block(self, block, staged)
+
+    monkeypatch.setattr(stereo.LineScanProcessor, "expect_wire_types", expect_wire_types)
+    monkeypatch.setattr(stereo.LineScanProcessor, "process_staged", counting)
+    with simulated.masts.open(newline="") as f:
+        registered = sorted({row["wire_type"] for row in csv.DictReader(f)})
+    assert "told" in one_line_error(process(simulated, database))
+    assert "told" in one_line_error(process(simulated, database, "--wire-type", "AC-150"))
+    assert told == [registered, ["AC-150"]] and not scans
+    assert stored(database) == (0, 0)
 
 
 def test_an_unmigrated_database_is_refused(simulated: Simulated, tmp_path: Path) -> None:

@@ -339,6 +339,19 @@ def test_create_reads_the_rig_and_the_settings(rig: Rig, tmp_path: Path) -> None
         create(tmp_path / "missing.toml", {})
 
 
+def test_the_runs_wire_types_give_the_radius_of_an_unworn_wire(rig: Rig, overlap: Section) -> None:
+    profiles = {p.name: p for p in load_profiles()}
+    processor = LineScanProcessor(rig)
+    assert processor.stage.wire_radius_mm == 0.25 * (10.6 + 14.8)  # the widths looked for
+    processor.expect_wire_types([profiles["AC-100"], profiles["AC-150"]])
+    radius = 0.25 * (profiles["AC-100"].width_mm + profiles["AC-150"].width_mm)
+    assert processor.stage.wire_radius_mm == radius == processor.stage.matching.wire_radius_mm
+    assert processor.config.wire_width_mm == (10.6, 14.8)  # the features' window unchanged
+    processor.process(next(overlap.blocks(16)))
+    with pytest.raises(ValueError, match="before the first block"):
+        processor.expect_wire_types([profiles["AC-100"]])
+
+
 def test_a_block_without_a_rig_camera_is_refused(rig: Rig, overlap: Section) -> None:
     block = next(overlap.blocks(16))
     cameras = dict(block.cameras)

@@ -3,7 +3,8 @@
 1. **Check** everything a user gives before anything is written: the run file's layout
    (opened once, so that its warnings are given once), the rig calibration (read by the
    processor) and, if the processor is a ``RunChecker``, that the run fits it (line widths,
-   regions of interest, cameras), the mast register and its wire types, the wire
+   regions of interest, cameras; a ``WireTypesUser`` is told the run's wire types), the mast
+   register and its wire types, the wire
    type, the line and track, the database's migration; a run already stored from the same
    file content and rig calibration is said so and left alone (``--replace`` processes it
    again and replaces it).
@@ -120,6 +121,7 @@ from catenary.plugins import (
     PluginRegistry,
     RunChecker,
     StagedProcessor,
+    WireTypesUser,
 )
 from catenary.positions import wire_positions
 from catenary.storage.database import open_database, session_scope
@@ -452,10 +454,11 @@ def _check_inputs(
 
 
 def _processor(
-    request: ProcessRequest, header: RunHeader, registry: PluginRegistry, settings: Settings
+    request: ProcessRequest, inputs: _Inputs, registry: PluginRegistry, settings: Settings
 ) -> tuple[BlockProcessor, VehicleGeometry]:
-    """The processor (created: it reads and checks the rig; and, if it is a ``RunChecker``,
-    it checks that the run fits the rig) and the vehicle geometry."""
+    """The processor (created: it reads and checks the rig; if it is a ``RunChecker``, it
+    checks that the run fits the rig; if it is a ``WireTypesUser``, it is told the run's wire
+    types) and the vehicle geometry."""
     found = registry.processors().get(request.processor)
     if found is None:
         known = ", ".join(sorted(registry.processors())) or "none"
@@ -468,10 +471,22 @@ def _processor(
         processor = found.create(request.rig_path, options)
         if isinstance(processor, RunChecker):
             try:
-                processor.check_run(header)
+                processor.check_run(inputs.header)
             except UserError as exc:
                 raise UserError(f"{request.run_path}: {exc}") from None
+        if isinstance(processor, WireTypesUser):
+            names = _run_wire_types(request.wire_type, inputs.register)
+            processor.expect_wire_types([inputs.wire_types[name] for name in names])
     return processor, geometry
+
+
+def _run_wire_types(wire_type: str | None, register: TrackRegister | None) -> list[str]:
+    """The wire types a run may hold, sorted: its ``--wire-type``, else its track's in the
+    mast register (one of the two is given: ``_check_inputs``)."""
+    if wire_type is not None:
+        return [wire_type]
+    assert register is not None
+    return sorted(set(register.wire_type))
 
 
 def processing_settings(
@@ -944,7 +959,7 @@ def _process_open_run(
     on_start: Callable[[RunHeader], None],
 ) -> ProcessResult:
     inputs = _check_inputs(request, run_file.header, settings, registry)
-    processor, geometry = _processor(request, run_file.header, registry, settings)
+    processor, geometry = _processor(request, inputs, registry, settings)
     workers = _workers(request, processor, inputs.header.scans)
     made_with = processing_settings(settings, request.processor, request.wire_type)
     alike_key = processing_key(settings, request.processor, request.wire_type, inputs.rig_text)

@@ -6,8 +6,8 @@
   ``Source``, ``VehicleSource``, ``Processor``, ``Reporter``, ``Notifier``, ``Command``,
   ``ConfigSection``, and
   the protocols their callables return (``ScanStream``, ``VehicleStream``,
-  ``BlockProcessor``, and the optional ``RunChecker``, ``ImageLocator`` and
-  ``StagedProcessor``);
+  ``BlockProcessor``, and the optional ``RunChecker``, ``ImageLocator``,
+  ``StagedProcessor`` and ``WireTypesUser``);
 - the payloads the core hands over: ``ReportRequest`` (reporters), ``AlertRecord``
   (notifiers, ``catenary_alert_raised``), and the domain types of ``catenary.domain``;
 - ``CommandContext`` and ``pass_command_context`` (``context``): what a plugin's command
@@ -38,6 +38,7 @@ from catenary.plugins.types import (
     StagedProcessor,
     VehicleSource,
     VehicleStream,
+    WireTypesUser,
 )
 from catenary.wiretype import WireType
 
@@ -63,6 +64,7 @@ __all__ = [
     "VehicleSource",
     "VehicleStream",
     "WireType",
+    "WireTypesUser",
     "database_option",
     "hookimpl",
     "pass_command_context",

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import dataclasses
 import warnings
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -25,6 +25,7 @@ from catenary.arrays import FloatArray
 from catenary.config import Settings
 from catenary.domain import RunHeader, ScanBlock, VehicleSamples, WireObservations
 from catenary.limits import LimitPolicy
+from catenary.wiretype import WireType
 
 if TYPE_CHECKING:
     from catenary.plugins.manager import PluginRegistry
@@ -45,6 +46,7 @@ __all__ = [
     "StagedProcessor",
     "VehicleSource",
     "VehicleStream",
+    "WireTypesUser",
 ]
 
 
@@ -134,6 +136,16 @@ class RunChecker(Protocol):
     line for a run that does not fit (naming the camera and the values) and may warn."""
 
     def check_run(self, header: RunHeader) -> None: ...
+
+
+@runtime_checkable
+class WireTypesUser(Protocol):
+    """A ``BlockProcessor`` that uses the wire types of the run (optional): the core calls
+    ``expect_wire_types(wire_types)`` before the first block with every type the run may
+    hold (its ``--wire-type``, else the mast register's types of its track), e.g. to take
+    the round wire's radius from their widths rather than assume one."""
+
+    def expect_wire_types(self, wire_types: Sequence[WireType]) -> None: ...
 
 
 @runtime_checkable

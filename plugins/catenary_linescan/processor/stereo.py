@@ -38,7 +38,8 @@ the block alone: they are the processor's ``stage`` (:class:`LineScanStage`, pic
                            half their mean is the radius of a wire whose face no two cameras
                            saw (a new wire: its silhouettes' middle is lowered to its bottom by
                            it) where its dark silhouettes do not measure it (at night, behind
-                           the filter): set both to the line's wire width where it has one
+                           the filter) and the run's wire types are not known: ``catenary
+                           process`` tells them (:meth:`LineScanProcessor.expect_wire_types`)
 ``min_track_m``            shortest track taken for a wire (``tracking.MIN_TRACK_M``)
 ``max_gap_m``              longest gap a track bridges (1.0)
 ``messenger_gap_mm``       height above the lowest contact wire of a messenger (200)
@@ -55,7 +56,7 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -66,6 +67,7 @@ from catenary.arrays import BoolArray, FloatArray, IntArray
 from catenary.domain import RunHeader, ScanBlock, WireObservations
 from catenary.errors import UserError
 from catenary.measurement.vehicle import roll_rad
+from catenary.wiretype import WireType
 from catenary_linescan.calibration import ResolutionTable
 from catenary_linescan.camera import LineScanCamera
 from catenary_linescan.rig import Rig, read_rig
@@ -103,6 +105,8 @@ class ProcessorConfig:
 
     ``features`` None derives the feature settings from the rig: the contact wire widths
     ``wire_width_mm`` at the finest and coarsest resolution of the rig's look-up tables.
+    ``run_wire_widths_mm`` are the widths (B) of the wire types the run may hold, where they
+    are known (not a setting: :meth:`LineScanProcessor.expect_wire_types`).
     """
 
     features: FeatureConfig | None = None
@@ -112,11 +116,14 @@ class ProcessorConfig:
     outlines: bool = False
     width_tolerance_mm: float = 0.25
     table_tolerance: float = 0.03
+    run_wire_widths_mm: tuple[float, ...] = ()
 
     @property
     def wire_radius_mm(self) -> float:
-        """Radius assumed for a wire whose face no two cameras saw: half the mean width."""
-        return 0.25 * (self.wire_width_mm[0] + self.wire_width_mm[1])
+        """Radius assumed for a wire whose face no two cameras saw [mm]: half the mean width
+        of the run's wire types, else of ``wire_width_mm``."""
+        widths = self.run_wire_widths_mm or self.wire_width_mm
+        return 0.5 * sum(widths) / len(widths)
 
     @classmethod
     def from_settings(cls, settings: Mapping[str, Any]) -> ProcessorConfig:
@@ -238,7 +245,20 @@ class LineScanProcessor:
 
     def __init__(self, rig: Rig, config: ProcessorConfig | None = None) -> None:
         self.rig = rig
-        self.config = config or ProcessorConfig()
+        self._configure(config or ProcessorConfig())
+
+    def expect_wire_types(self, wire_types: Sequence[WireType]) -> None:
+        """Take the radius of a wire whose face no two cameras saw from the widths of the
+        wire types the run may hold (``WireTypesUser``; before the first block)."""
+        if self._next_scan:
+            raise ValueError("the wire types come before the first block")
+        widths = tuple(sorted({wire.width_mm for wire in wire_types}))
+        self._configure(replace(self.config, run_wire_widths_mm=widths))
+
+    def _configure(self, config: ProcessorConfig) -> None:
+        """Set up the settings, the stage and the tracking for ``config`` (no block yet)."""
+        rig = self.rig
+        self.config = config
         self.names = list(rig.cameras)
         if len(self.names) < 2:
             raise UserError(f"rig {rig.vehicle.name!r} has {len(self.names)} camera; need two")
