@@ -243,10 +243,11 @@ class FeatureConfig:
         Join a bright and a dark run that together span no more than the widest wire and
         report which boundary alone is a faceless wire's outline (``outline_side``; module
         docstring, steps 2-3), which the matching then images at the axis a radius inward.
-        Off by default: on the scenario sweep it raises the recall of unworn wire behind the
-        band-pass filter (README), but it costs some worn 16k scenes recall and heights,
-        which is not yet understood. Off, runs one bin apart in opposite polarity are
-        joined and ``outline_side`` is 0.
+        Off by default here; the processor turns it on (``ProcessorConfig.outlines``): on the
+        scenario sweep it raises the recall of unworn wire behind the band-pass filter and
+        lowers its worst heights (README), at some cost to worn 16k scenes (a joined
+        candidate may reach on over an undetected neighbour within the widest wire). Off,
+        runs one bin apart in opposite polarity are joined and ``outline_side`` is 0.
     """
 
     wire_width_px: tuple[float, float] = (10.6 / 0.5, 14.8 / 0.2)
@@ -809,6 +810,14 @@ def _candidates(
         else start[1:] - stop[:-1] > 1
     )
     new[1:] = ~same_row | apart | (end_sign[:-1] == start_sign[1:])
+    if cfg.outlines:
+        # runs each within a wire's width of the next may chain wider than a wire (two wires
+        # side by side at a turnout's crossing): there, only runs one bin apart join
+        group = np.cumsum(new) - 1
+        first = np.flatnonzero(new)
+        last = np.append(first[1:] - 1, row.shape[0] - 1)
+        wide = (stop[last] - start[first]) * b > cfg.wire_width_px[1] + 2 * b
+        new[1:] |= wide[group[1:]] & (start[1:] - stop[:-1] > 1)
     # one candidate too: a dark silhouette split at its worn face (white daylight: the face
     # may be almost as bright as the sky, so that it is not detected)
     joined = _dark_joins(data, sums, sigma, cfg, row, start, stop, end_sign, start_sign)
