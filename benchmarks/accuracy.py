@@ -34,7 +34,7 @@ within 2 mm; recall 99.5 %; no false wire; at most 0.5 % of the rows uncertain.
     .venv/bin/python benchmarks/accuracy.py --sensor-noise-mm 0.5 --sensor-rate-hz 100
     .venv/bin/python benchmarks/accuracy.py --vehicle-filter-hz 0   # sensors unsmoothed
     .venv/bin/python benchmarks/accuracy.py --cases limit-filter --lighting night
-    .venv/bin/python benchmarks/accuracy.py --outlines      # an unworn wire's outline on one side
+    .venv/bin/python benchmarks/accuracy.py --no-outlines   # no unworn wire's outline on one side
 """
 
 from __future__ import annotations
@@ -464,17 +464,17 @@ def print_table(results: list[dict[str, Any]]) -> None:
 
 
 def add_outlines_option(parser: argparse.ArgumentParser) -> None:
-    """The benchmarks' ``--outlines``: the processor setting on (:func:`processor_config`)."""
+    """The benchmarks' ``--no-outlines``: the processor setting off (:func:`processor_config`)."""
     parser.add_argument(
-        "--outlines",
+        "--no-outlines",
         action="store_true",
-        help="the processor setting outlines = true (an unworn wire's outline on one side)",
+        help="the processor setting outlines = false (no unworn wire's outline on one side)",
     )
 
 
 def processor_config(args: argparse.Namespace) -> ProcessorConfig | None:
     """The processor settings the parsed options ask for (None: the defaults)."""
-    return ProcessorConfig(outlines=True) if args.outlines else None
+    return ProcessorConfig(outlines=False) if args.no_outlines else None
 
 
 def main(argv: list[str] | None = None) -> int:

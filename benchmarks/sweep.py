@@ -565,7 +565,7 @@ def main(argv: list[str] | None = None) -> int:
     scenarios = [draw(args.seed, k, tuple(args.length_m)) for k in numbers]
     print(
         f"sweep: {len(scenarios)} scene(s) of seed {args.seed}, {args.jobs} job(s)"
-        + (", outlines on" if args.outlines else ""),
+        + (", outlines off" if args.no_outlines else ""),
         file=sys.stderr,
     )
     for s in scenarios:

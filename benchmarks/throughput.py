@@ -36,10 +36,10 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from accuracy import calibrated_rig  # noqa: E402
+from accuracy import add_outlines_option, calibrated_rig, processor_config  # noqa: E402
 
 from catenary.domain import CameraLines, ScanBlock  # noqa: E402
-from catenary_linescan.processor.stereo import LineScanProcessor  # noqa: E402
+from catenary_linescan.processor.stereo import LineScanProcessor, ProcessorConfig  # noqa: E402
 from catenary_linescan.simulator import Simulation, parse_settings  # noqa: E402
 
 PAPER_SCANS_PER_S = 1000.0
@@ -95,8 +95,11 @@ def render_blocks(lighting: str, blocks: int, block_scans: int) -> list[ScanBloc
     return out
 
 
-def stage_times(rig, blocks: list[ScanBlock]) -> dict[str, float]:
-    """CPU seconds per stage of one pass: features, matching (with face widths), tracking."""
+def stage_times(
+    rig, blocks: list[ScanBlock], config: ProcessorConfig | None = None
+) -> dict[str, float]:
+    """CPU seconds per stage of one pass (processor settings ``config``, None: the
+    defaults): features, matching (with face widths), tracking."""
     import catenary_linescan.processor.stereo as stereo
     from catenary_linescan.processor.tracking import WireTracker
 
@@ -122,7 +125,7 @@ def stage_times(rig, blocks: list[ScanBlock]) -> dict[str, float]:
     for name in ("push", "finish"):
         timed(name, "tracking", WireTracker)
     try:
-        run(LineScanProcessor(rig), blocks)
+        run(LineScanProcessor(rig, config), blocks)
     finally:
         for (owner, name), function in originals.items():
             setattr(owner, name, function)
@@ -143,7 +146,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--lighting", default="night", choices=["night", "day-filter", "day-white"])
     parser.add_argument("--repeat", type=int, default=3, help="timed passes (best is kept)")
     parser.add_argument("--profile", action="store_true", help="print the hottest functions")
+    add_outlines_option(parser)
     args = parser.parse_args(argv)
+    config = processor_config(args)
 
     with tempfile.TemporaryDirectory() as tmp:
         rig = calibrated_rig(Path(tmp))
@@ -155,12 +160,12 @@ def main(argv: list[str] | None = None) -> int:
         f"({args.lighting}, through an overlap), blocks of {args.block_scans}"
     )
 
-    run(LineScanProcessor(rig), blocks[:1])  # warm up (imports, caches)
+    run(LineScanProcessor(rig, config), blocks[:1])  # warm up (imports, caches)
     best = float("inf")
     best_cpu = float("inf")
     rows = 0
     for _ in range(args.repeat):
-        processor = LineScanProcessor(rig)
+        processor = LineScanProcessor(rig, config)
         started = time.perf_counter()
         started_cpu = time.process_time()
         rows = run(processor, blocks)
@@ -176,14 +181,14 @@ def main(argv: list[str] | None = None) -> int:
         f"  {1e6 * best / scans:.1f} µs per scan wall, {1e6 * best_cpu / scans:.1f} µs CPU "
         f"({scans / best_cpu:,.0f} scans/s of CPU); {rows} wire observations"
     )
-    stages = stage_times(rig, blocks)
+    stages = stage_times(rig, blocks, config)
     print(
         "  per stage (CPU µs per scan): "
         + ", ".join(f"{k} {1e6 * v / scans:.1f}" for k, v in stages.items())
     )
 
     tracemalloc.start()
-    run(LineScanProcessor(rig), blocks)
+    run(LineScanProcessor(rig, config), blocks)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     block_bytes = sum(c.lines.nbytes for c in blocks[0].cameras.values())
@@ -197,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.profile:
         profiler = cProfile.Profile()
         profiler.enable()
-        run(LineScanProcessor(rig), blocks)
+        run(LineScanProcessor(rig, config), blocks)
         profiler.disable()
         pstats.Stats(profiler).sort_stats("tottime").print_stats(20)
     return 0

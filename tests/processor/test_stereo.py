@@ -318,10 +318,10 @@ def test_create_reads_the_rig_and_the_settings(rig: Rig, tmp_path: Path) -> None
             "messenger_gap_mm": 250,
             "min_cameras": 3,
             "wire_width_mm": [10.0, 15.0],
-            "outlines": True,
+            "outlines": False,
         },
     )
-    assert processor.stage.features.outlines and not create(path, {}).stage.features.outlines
+    assert create(path, {}).stage.features.outlines and not processor.stage.features.outlines
     assert processor.config.tracking.min_track_m == 0.8
     assert processor.config.tracking.messenger_gap_mm == 250.0
     assert processor.config.matching.min_cameras == 3

@@ -44,7 +44,7 @@ the block alone: they are the processor's ``stage`` (:class:`LineScanStage`, pic
 ``max_gap_m``              longest gap a track bridges (1.0)
 ``messenger_gap_mm``       height above the lowest contact wire of a messenger (200)
 ``max_height_mm``          highest a contact wire runs above the roof (3000)
-``outlines``               find a faceless wire's outline on one side only (false: features
+``outlines``               find a faceless wire's outline on one side only (true: features
                            module, ``FeatureConfig.outlines``)
 ``width_tolerance_mm``     cameras further than this from the median face width are left out
 ``table_tolerance``        largest relative difference between the camera model's and the
@@ -113,7 +113,7 @@ class ProcessorConfig:
     matching: MatchConfig = field(default_factory=MatchConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     wire_width_mm: tuple[float, float] = CONTACT_WIRE_WIDTH_MM
-    outlines: bool = False
+    outlines: bool = True
     width_tolerance_mm: float = 0.25
     table_tolerance: float = 0.03
     run_wire_widths_mm: tuple[float, ...] = ()
