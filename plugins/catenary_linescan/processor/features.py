@@ -1382,17 +1382,21 @@ def _outline_sides(
     ramp0, slope = sky.ramp0[sel][:, np.newaxis], sky.slope[sel][:, np.newaxis]
     level_l = (w.xs4[base + left] - (ramp0 + slope * left)).mean(axis=1)
     level_r = (w.xs4[base + right] - (ramp0 + slope * right)).mean(axis=1)
-    # the darkest pixel between the boundaries
-    px = np.arange(w.stride)
-    deviation = w.xs4.reshape(-1, w.stride)[sel] - (ramp0 + slope * px)
-    between = (px >= left[:, :1]) & (px <= right[:, :1])
-    darkest = -np.where(between, deviation, np.inf).min(axis=1)
-    half = np.where(darkest > cfg.boundary_k * w.s4[sel], -0.5 * darkest, -np.inf)
     # the sky beside both boundaries clear of other runs for a narrow wire's radius [line px]
     radius, first = 0.5 * cfg.wire_width_px[0], w.first_px[sel]
     clear = (boundaries.left[sel] + first - gaps[0][sel] >= radius) & (
         gaps[1][sel] - (boundaries.right[sel] + first) >= radius
     )
+    # the darkest pixel between the boundaries, where a boundary may be an outline (darker
+    # than the sky inside it: half the darkest deviation is below the sky's level)
+    maybe = np.flatnonzero(clear & (np.minimum(level_l, level_r) < 0.0))
+    darkest = np.zeros(sel.shape[0])
+    if maybe.shape[0]:
+        px = np.arange(w.stride)
+        deviation = w.xs4.reshape(-1, w.stride)[sel[maybe]] - (ramp0[maybe] + slope[maybe] * px)
+        between = (px >= left[maybe, :1]) & (px <= right[maybe, :1])
+        darkest[maybe] = -np.where(between, deviation, np.inf).min(axis=1)
+    half = np.where(darkest > cfg.boundary_k * w.s4[sel], -0.5 * darkest, -np.inf)
     outline_l, outline_r = (level_l <= half) & clear, (level_r <= half) & clear
     side = np.where(outline_l & ~outline_r, -1, np.where(outline_r & ~outline_l, 1, 0))
     return side.astype(np.int8)
