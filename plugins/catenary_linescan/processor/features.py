@@ -804,27 +804,22 @@ def _candidates(
     start_sign = flat[row * width + start]
     same_row = row[1:] == row[:-1]
     new = np.ones(row.shape[0], dtype=bool)
-    apart = (
-        (stop[1:] - start[:-1]) * b > cfg.wire_width_px[1] + 2 * b
-        if cfg.outlines
-        else start[1:] - stop[:-1] > 1
-    )
+    widest = cfg.wire_width_px[1] + 2 * b  # [px]
+    one_bin_apart = start[1:] - stop[:-1] <= 1
+    apart = (stop[1:] - start[:-1]) * b > widest if cfg.outlines else ~one_bin_apart
     new[1:] = ~same_row | apart | (end_sign[:-1] == start_sign[1:])
     if cfg.outlines:
         # runs each within a wire's width of the next may chain wider than a wire (two wires
         # side by side at a turnout's crossing): there, only runs one bin apart join
-        group = np.cumsum(new) - 1
-        first = np.flatnonzero(new)
-        last = np.append(first[1:] - 1, row.shape[0] - 1)
-        wide = (stop[last] - start[first]) * b > cfg.wire_width_px[1] + 2 * b
-        new[1:] |= wide[group[1:]] & (start[1:] - stop[:-1] > 1)
+        first, last = _groups(new)
+        wide = (stop[last] - start[first]) * b > widest
+        new[1:] |= wide[np.cumsum(new)[1:] - 1] & ~one_bin_apart
     # one candidate too: a dark silhouette split at its worn face (white daylight: the face
     # may be almost as bright as the sky, so that it is not detected)
     joined = _dark_joins(data, sums, sigma, cfg, row, start, stop, end_sign, start_sign)
     if joined is not None:
         new[1:] &= ~joined
-    first = np.flatnonzero(new)
-    last = np.append(first[1:] - 1, row.shape[0] - 1)
+    first, last = _groups(new)
     row, start, stop = row[first], start[first], stop[last]
     start, stop = _dark_faces(detected, sums, sigma, cfg, row, start, stop)
     start, stop = _extents(sums, sigma, cfg, row, start, stop)
@@ -835,6 +830,13 @@ def _candidates(
     gap_r = np.concatenate((np.where(same, (start[1:] - 1) * b, far), [far]))
     keep = (stop - start) * b <= cfg.max_width + 2 * b
     return row[keep], start[keep], stop[keep], gap_l[keep], gap_r[keep]
+
+
+def _groups(new: NDArray[np.bool_]) -> tuple[IndexArray, IndexArray]:
+    """The first and last run of each group of runs, ``(g,)`` each; a group begins at each
+    run where ``new`` ``(m,)`` is true (``new[0]`` is)."""
+    first = np.flatnonzero(new)
+    return first, np.append(first[1:] - 1, new.shape[0] - 1)
 
 
 def _extents(
