@@ -764,6 +764,39 @@ def test_a_dark_silhouette_split_at_a_face_has_no_outline_side() -> None:
     assert np.all(f.outline_side == 0)
 
 
+def test_a_messenger_beside_a_lit_wire_is_not_joined_to_it() -> None:
+    """Behind the filter on a 16,384-px rig (sweep scene 42): a messenger (dark edges, its
+    middle near the sky's level) 18 px of sky beside a contact wire whose lit face lies
+    between its dark sides. The two dark runs were taken for one dark silhouette split at a
+    face: the sky beside them was measured on the wire's lit face, brighter than the gap, and
+    the wire's candidate reached over the messenger (its left boundary 27-102 px off)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    def messenger_beside_a_lit_wire(a: float, n: int = 2048, sub: int = 16) -> np.ndarray:
+        u = (np.arange(n * sub) + 0.5) / sub - 0.5 - a
+        fine = np.full(u.shape, 50.0)
+        fine[(u >= 0) & (u < 85)] = 47.0  # the messenger, its edges dark
+        fine[((u >= 0) & (u < 12)) | ((u >= 73) & (u < 85))] = 30.0
+        fine[(u >= 103) & (u < 143)] = 25.0  # the contact wire: a dark side,
+        fine[(u >= 143) & (u < 171)] = 400.0  # the lit face,
+        fine[(u >= 171) & (u < 206)] = 28.0  # the other side
+        blurred: np.ndarray = gaussian_filter1d(fine, 1.5 * sub).reshape(n, sub).mean(axis=1)
+        return blurred
+
+    a = np.array([800.0 + p + 8 * k for k in range(4) for p in np.linspace(0, 1, 16, False)])
+    rng = np.random.default_rng(7)
+    clean = np.stack([messenger_beside_a_lit_wire(v) for v in a])
+    noisy = np.rint(clean + rng.normal(0.0, 5.0, clean.shape))
+    lines = np.clip(noisy, 0, 1023).astype(np.uint16)
+    config = FeatureConfig.from_resolution((10.6, 14.8), (0.0632, 0.1867), outlines=True)
+    f = extract_features(lines, 10, config=config)
+    assert len(f) >= 0.9 * a.shape[0]
+    wire_left = a[f.scan] + 103.0
+    assert np.all(f.left_px > wire_left - 9.0)  # never over the gap's middle
+    assert np.median(np.abs(f.left_px - wire_left)) < 1.0
+    assert np.median(np.abs(f.right_px - (a[f.scan] + 206.0))) < 1.0
+
+
 def test_cloud_texture_on_the_sky_pixels_does_not_move_a_boundary() -> None:
     """A narrow cloud (6 DN) on the sky pixels beside a wire: the sky ramp through them is
     wrong by a few DN next to the wire, which used to pull the right boundary 15 px into the

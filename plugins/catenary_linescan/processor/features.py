@@ -816,7 +816,7 @@ def _candidates(
         new[1:] |= wide[np.cumsum(new)[1:] - 1] & ~one_bin_apart
     # one candidate too: a dark silhouette split at its worn face (white daylight: the face
     # may be almost as bright as the sky, so that it is not detected)
-    joined = _dark_joins(data, sums, sigma, cfg, row, start, stop, end_sign, start_sign)
+    joined = _dark_joins(detected, data, sums, sigma, cfg, row, start, stop, end_sign, start_sign)
     if joined is not None:
         new[1:] &= ~joined
     first, last = _groups(new)
@@ -1018,6 +1018,7 @@ def _dark_faces(
 
 
 def _dark_joins(
+    detected: NDArray[np.int8],
     data: np.ndarray,
     sums: NDArray[np.float32],
     sigma: NDArray[np.float32],
@@ -1038,8 +1039,10 @@ def _dark_joins(
     bottom lit by the vehicle's strobe behind the band-pass filter is brighter than the dim
     sky (by less than ``detect_rel`` over a bin, its dark sides beside it), while the sky
     between two separate objects (two messengers side by side) is the sky's level. The sky is
-    the brightest of the two bins on either side beyond a bin clear of the pair (a neighbour
-    never makes the gap look like a face); the gap's level is its brightest three-pixel mean
+    the brightest of the two bins on either side beyond a bin clear of the pair that no run
+    holds (``detected``; all four where every one is held): a dark neighbour would make the
+    gap look like a face, and so would a bright one, a contact wire's lit face or bottom
+    beside its messenger behind the filter; the gap's level is its brightest three-pixel mean
     (clear of the blurred dark sides). Sky texture allowed: ``detect_rel`` of the sky's level over a
     background window, pro rata over the distance from the gap to the sky measured. A group
     of such runs wider than a wire is not joined.
@@ -1070,7 +1073,10 @@ def _dark_joins(
     beside = np.concatenate(
         [start[pair, None] - np.arange(2, 4), stop[pair + 1, None] + np.arange(1, 3)], axis=1
     )
-    sky = sums[r[:, None], np.clip(beside, 0, nb - 1)].max(axis=1) * np.float32(1.0 / b)
+    beside = np.clip(beside, 0, nb - 1)
+    clear = detected[r[:, None], beside] == 0
+    clear[~clear.any(axis=1)] = True  # no bin clear of every run: all four
+    sky = np.where(clear, sums[r[:, None], beside], -np.inf).max(axis=1) * np.float32(1.0 / b)
     middle = 0.5 * (g0 + g1)
     reach = np.maximum(middle - (start[pair] - 2.5) * b, (stop[pair + 1] + 2.5) * b - middle)
     texture = cfg.detect_rel * reach / cfg.background * sky
