@@ -23,6 +23,7 @@ Figures these tests hold (8-bit demo rig, 40 scans x 4 cameras x 2 contact wires
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from functools import cache
 
 import numpy as np
@@ -656,20 +657,30 @@ def test_two_wires_with_sky_between_them_stay_two() -> None:
     np.testing.assert_allclose(f.right_px[1::2], 550.0 + phases, atol=0.4)
 
 
+def pixel_integrated(
+    profile: Callable[[np.ndarray], np.ndarray], n: int, blur_px: float, sub: int = 16
+) -> np.ndarray:
+    """``profile`` (levels at positions [px]) blurred by a Gaussian of ``blur_px`` and
+    integrated over each of ``n`` pixels (``sub`` samples each): a line as a camera sees it."""
+    from scipy.ndimage import gaussian_filter1d
+
+    x = (np.arange(n * sub) + 0.5) / sub - 0.5
+    blurred: np.ndarray = gaussian_filter1d(profile(x), blur_px * sub)
+    return blurred.reshape(n, sub).mean(axis=1)
+
+
 def unworn_behind_the_filter(left: float, width: float = 32.0, n: int = 1024) -> np.ndarray:
     """An unworn wire by day behind the band-pass filter on a dim sky (12 DN of 255): a sharp
     dark side (3 DN) rising to its lit bottom (16 DN), then a shallow dark side (9 DN) a fifth
     of the wire wide, blurred by 1 px (Gaussian) and pixel-integrated: the shape of the
     simulator's lines that the features missed (``new-wire-filter``, cameras 1 and 2)."""
-    from scipy.ndimage import gaussian_filter1d
 
-    sub = 16
-    x = (np.arange(n * sub) + 0.5) / sub - 0.5
-    t = (x - left) / width
-    wire = np.interp(t, [0.0, 0.6, 0.75, 0.8, 1.0], [3.0, 16.0, 11.0, 9.0, 9.0])
-    fine = np.where((t >= 0.0) & (t <= 1.0), wire, 12.0)
-    blurred: np.ndarray = gaussian_filter1d(fine, float(sub)).reshape(n, sub).mean(axis=1)
-    return blurred
+    def profile(x: np.ndarray) -> np.ndarray:
+        t = (x - left) / width
+        wire = np.interp(t, [0.0, 0.6, 0.75, 0.8, 1.0], [3.0, 16.0, 11.0, 9.0, 9.0])
+        return np.where((t >= 0.0) & (t <= 1.0), wire, 12.0)
+
+    return pixel_integrated(profile, n, 1.0)
 
 
 def test_an_unworn_wire_behind_the_filter_keeps_its_shallow_side() -> None:
@@ -700,16 +711,14 @@ def unworn_lit_from_one_side(left: float, width: float = 60.0, n: int = 1024) ->
     level to its lit bottom (24 DN), then a side as bright as the sky, blurred by 1 px
     (Gaussian) and pixel-integrated: the shape of the simulator's lines of an 8192-px rig
     (``sweep.py --scene 8``)."""
-    from scipy.ndimage import gaussian_filter1d
 
-    sub = 16
-    x = (np.arange(n * sub) + 0.5) / sub - 0.5
-    t = (x - left) / width
-    levels = [3.0, 4.0, 9.5, 10.5, 24.0, 14.0, 9.5, 9.5]
-    wire = np.interp(t, [0.0, 0.15, 0.3, 0.45, 0.6, 0.75, 0.9, 1.0], levels)
-    fine = np.where((t >= 0.0) & (t <= 1.0), wire, 10.0)
-    blurred: np.ndarray = gaussian_filter1d(fine, float(sub)).reshape(n, sub).mean(axis=1)
-    return blurred
+    def profile(x: np.ndarray) -> np.ndarray:
+        t = (x - left) / width
+        levels = [3.0, 4.0, 9.5, 10.5, 24.0, 14.0, 9.5, 9.5]
+        wire = np.interp(t, [0.0, 0.15, 0.3, 0.45, 0.6, 0.75, 0.9, 1.0], levels)
+        return np.where((t >= 0.0) & (t <= 1.0), wire, 10.0)
+
+    return pixel_integrated(profile, n, 1.0)
 
 
 def test_an_unworn_wire_lit_from_one_side_gives_the_edge_of_its_outline() -> None:
@@ -745,14 +754,14 @@ def test_a_dark_silhouette_split_at_a_face_has_no_outline_side() -> None:
     face falls as steeply, but neither part is a wire seen on one side: they used to get
     ``outline_side`` (a third of them), and the matching put the axis a radius inward of
     the face's edge, 8.5 mm off."""
-    from scipy.ndimage import gaussian_filter1d
 
-    def split_at_a_face(left: float, n: int = 1024, sub: int = 16) -> np.ndarray:
-        x = (np.arange(n * sub) + 0.5) / sub - 0.5
-        fine = np.interp(x - left, [0.0, 70.0, 70.0, 82.0, 82.0, 130.0], [10, 10, 70, 70, 12, 12])
-        fine = np.where((x >= left) & (x < left + 130.0), fine, 110.0)
-        blurred: np.ndarray = gaussian_filter1d(fine, 1.5 * sub).reshape(n, sub).mean(axis=1)
-        return blurred
+    def split_at_a_face(left: float) -> np.ndarray:
+        def profile(x: np.ndarray) -> np.ndarray:
+            levels = [10, 10, 70, 70, 12, 12]
+            fine = np.interp(x - left, [0.0, 70.0, 70.0, 82.0, 82.0, 130.0], levels)
+            return np.where((x >= left) & (x < left + 130.0), fine, 110.0)
+
+        return pixel_integrated(profile, 1024, 1.5)
 
     left = np.array([400.0 + p + 8 * k for k in range(4) for p in np.linspace(0, 1, 16, False)])
     rng = np.random.default_rng(7)
@@ -770,18 +779,19 @@ def test_a_messenger_beside_a_lit_wire_is_not_joined_to_it() -> None:
     between its dark sides. The two dark runs were taken for one dark silhouette split at a
     face: the sky beside them was measured on the wire's lit face, brighter than the gap, and
     the wire's candidate reached over the messenger (its left boundary 27-102 px off)."""
-    from scipy.ndimage import gaussian_filter1d
 
-    def messenger_beside_a_lit_wire(a: float, n: int = 2048, sub: int = 16) -> np.ndarray:
-        u = (np.arange(n * sub) + 0.5) / sub - 0.5 - a
-        fine = np.full(u.shape, 50.0)
-        fine[(u >= 0) & (u < 85)] = 47.0  # the messenger, its edges dark
-        fine[((u >= 0) & (u < 12)) | ((u >= 73) & (u < 85))] = 30.0
-        fine[(u >= 103) & (u < 143)] = 25.0  # the contact wire: a dark side,
-        fine[(u >= 143) & (u < 171)] = 400.0  # the lit face,
-        fine[(u >= 171) & (u < 206)] = 28.0  # the other side
-        blurred: np.ndarray = gaussian_filter1d(fine, 1.5 * sub).reshape(n, sub).mean(axis=1)
-        return blurred
+    def messenger_beside_a_lit_wire(a: float) -> np.ndarray:
+        def profile(x: np.ndarray) -> np.ndarray:
+            u = x - a
+            fine = np.full(u.shape, 50.0)
+            fine[(u >= 0) & (u < 85)] = 47.0  # the messenger, its edges dark
+            fine[((u >= 0) & (u < 12)) | ((u >= 73) & (u < 85))] = 30.0
+            fine[(u >= 103) & (u < 143)] = 25.0  # the contact wire: a dark side,
+            fine[(u >= 143) & (u < 171)] = 400.0  # the lit face,
+            fine[(u >= 171) & (u < 206)] = 28.0  # the other side
+            return fine
+
+        return pixel_integrated(profile, 2048, 1.5)
 
     a = np.array([800.0 + p + 8 * k for k in range(4) for p in np.linspace(0, 1, 16, False)])
     rng = np.random.default_rng(7)

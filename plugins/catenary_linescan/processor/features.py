@@ -1090,10 +1090,8 @@ def _dark_joins(
     # groups of runs joined so: not wider than a wire
     head = np.ones(row.shape[0], dtype=bool)
     head[1:] = ~join
-    group = np.cumsum(head) - 1
-    heads = np.flatnonzero(head)
-    tails = np.append(heads[1:] - 1, row.shape[0] - 1)
-    fits = ((stop[tails] - start[heads]) * b <= widest)[group]
+    heads, tails = _groups(head)
+    fits = ((stop[tails] - start[heads]) * b <= widest)[np.cumsum(head) - 1]
     joins: NDArray[np.bool_] = join & fits[1:]
     return joins
 
