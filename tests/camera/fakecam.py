@@ -58,6 +58,8 @@ def _library() -> ctypes.CDLL:
     lib.arv_buffer_get_data.restype = ctypes.c_void_p
     lib.arv_buffer_get_timestamp.argtypes = [ctypes.c_void_p]
     lib.arv_buffer_get_timestamp.restype = ctypes.c_uint64
+    lib.arv_buffer_set_timestamp.argtypes = [ctypes.c_void_p, ctypes.c_uint64]
+    lib.arv_buffer_set_timestamp.restype = None
     for name in ("arv_buffer_get_image_width", "arv_buffer_get_image_height"):
         getattr(lib, name).argtypes = [ctypes.c_void_p]
         getattr(lib, name).restype = ctypes.c_int
@@ -114,12 +116,17 @@ class FakeCamera:
         """Drop this share of the stream's packets (the ``-r`` of ``arv-fake-gv-camera``)."""
         self.camera.set_property("gvsp-lost-ratio", per_thousand / 1000.0)
 
-    def fill(self, content: Content | None, rate_hz: float = 1.0) -> None:
+    def fill(
+        self, content: Content | None, rate_hz: float = 1.0, *, line_clock: bool = False
+    ) -> None:
         """Fill frames with ``content`` (None: Aravis's own diagonal ramp) as a line-scan
         camera would: the lines go on from frame to frame, from those of the frame period
         (at ``rate_hz``, from the UNIX epoch) that the second frame's timestamp falls in.
         The fake camera sends its frames on that grid but its first one anywhere (it holds
-        the lines of its own period; the gige source does not time by a first frame)."""
+        the lines of its own period; the gige source does not time by a first frame).
+        ``line_clock``: each frame is stamped with its first line's time, as a camera's own
+        line clock stamps it, instead of when the fake camera's thread woke (late by up to
+        tens of ms on this busy machine: module docstring)."""
         if content is None:
             _LIB.arv_fake_camera_set_fill_pattern(self._pointer, _FILL(), None)
             self._callback = None
@@ -133,6 +140,8 @@ class FakeCamera:
                 self._next_line = int(stamped // height) * height
             assert self._next_line is not None
             first, self._next_line = self._next_line, self._next_line + height
+            if line_clock:
+                _LIB.arv_buffer_set_timestamp(buffer, round(first / rate_hz * 1e9))
             lines = np.ascontiguousarray(content(first, height, width), dtype=np.uint8)
             target = _LIB.arv_buffer_get_data(buffer, None)
             ctypes.memmove(target, lines.ctypes.data, min(lines.nbytes, width * height))
