@@ -169,6 +169,15 @@ class AravisCamera:
         finally:
             self._stream.push_buffer(buffer)
 
+    def check(self) -> None:
+        if self._camera is None:
+            raise CameraUnavailable(f"camera {self._settings.device}: not connected")
+        try:  # Aravis caches no register by default: this asks the camera
+            self._camera.get_integer("Width")
+        except Exception as exc:  # GLib.Error: no answer
+            device, problem = self._settings.device, one_line(exc)
+            raise CameraUnavailable(f"camera {device}: no answer ({problem})") from None
+
     def disconnect(self) -> None:
         camera, self._camera, self._stream = self._camera, None, None
         if camera is not None:

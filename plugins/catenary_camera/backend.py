@@ -55,6 +55,12 @@ class CameraBackend(Protocol):
         when the connection is lost."""
         ...
 
+    def check(self) -> None:
+        """Read a register of the camera's, not a frame (its ``Width``, past any cache):
+        ``CameraUnavailable`` if it does not answer. With encoder triggering, a camera that
+        sends no frame may be standing with the train."""
+        ...
+
     def disconnect(self) -> None:
         """Stop acquiring and release the device (safe to call twice or unconnected)."""
         ...

@@ -321,6 +321,18 @@ class GenTLCamera:
                 raise poller.error from None
             return None
 
+    def check(self) -> None:
+        acquirer, poller = self._acquirer, self._poller
+        if acquirer is None or poller is None:
+            raise CameraUnavailable(f"camera {self._settings.device}: not connected")
+        if poller.error is not None:
+            raise poller.error
+        try:
+            acquirer.remote_device.node_map.Width.get_value(ignore_cache=True)
+        except Exception as exc:  # genicam's errors: no answer
+            device, problem = self._settings.device, one_line(exc)
+            raise CameraUnavailable(f"camera {device}: no answer ({problem})") from None
+
     def _frame(self, buffer: Any, host_s: float) -> Frame:
         """The frame of a raw GenTL buffer that arrived at ``host_s`` [s, UNIX time]."""
         frame_id = _optional(buffer, "frame_id")

@@ -24,6 +24,15 @@ are handed out without its line (``valid = False``). Back, its first :data:`PRER
 frames teach its clock again (as when recording started; their lines are not kept) and the
 next is placed by time.
 
+**Standing.** With encoder triggering a camera takes a line per encoder pulse, so that while
+the train stands no camera sends a frame: when none of them has for ``timeout_s``, each
+reader asks its camera for a register (:meth:`~catenary_camera.backend.CameraBackend.check`)
+every ``timeout_s`` instead; a camera that answers is standing, not dropped off, and its
+frames go on by their ids when the train moves (nothing is lost, nothing learnt again). One
+that does not answer drops off as above. A camera silent while another sends frames has
+dropped off (the encoder drives them all). Recording may start with the train standing: the
+cameras' first frames are waited for as long as they all answer.
+
 **Positions.** Free-running: ``position_m`` is NaN and the stream declares
 ``positions_from_encoder``: the recorder interpolates the CAN encoder to the scan times.
 Encoder-triggered: scan ``i`` is at ``i * metres_per_line`` (lost lines are counted by frame
@@ -81,6 +90,19 @@ class _Placed:
     host_stamped: bool = False
 
 
+class _Activity:
+    """When any of the rig's cameras last sent a frame [s, ``time.monotonic``], which every
+    reader updates: with encoder triggering, all silent is the train standing."""
+
+    def __init__(self) -> None:
+        self.last_frame_s = time.monotonic()
+
+    def standing(self, settings: GigeSettings, now: float) -> bool:
+        """Whether the train may be standing: encoder triggering, and no camera has sent a
+        frame for ``timeout_s``."""
+        return settings.trigger == "encoder" and now - self.last_frame_s > settings.timeout_s
+
+
 @dataclass(frozen=True)
 class _Link:
     """A camera's link changed state (``up`` after a (re)connection, ``down``)."""
@@ -100,12 +122,15 @@ class _Reader(threading.Thread):
         settings: GigeSettings,
         out: queue.Queue[_Placed | _Link],
         clock: ClockTracker,
+        activity: _Activity,
     ) -> None:
         super().__init__(name=f"gige-{camera.name}", daemon=True)
         self.camera = camera
         self.backend = backend
         self._settings = settings
         self._out = out
+        self._activity = activity
+        self.standing = False  # the train stands (module docstring): shown by the status
         self.stop = threading.Event()
         self.clock = clock
         # the mapping that places frames: the clock's fit when recording started (its later
@@ -169,17 +194,22 @@ class _Reader(threading.Thread):
                 learning = _Learning(settings, self.clock, self.backend.frame_id_modulus)
             try:
                 frame = self.backend.read(READ_TIMEOUT_S)
-                if frame is None and time.monotonic() - last_frame > settings.timeout_s:
-                    raise CameraUnavailable(f"no frame for {settings.timeout_s:g} s")
+                now = time.monotonic()
+                if frame is None and now - last_frame > settings.timeout_s:
+                    if not self._activity.standing(settings, now):
+                        raise CameraUnavailable(f"no frame for {settings.timeout_s:g} s")
+                    self.backend.check()  # it answers: standing
+                    self.standing, last_frame = True, now
             except CameraUnavailable as exc:
                 self.backend.disconnect()
-                connected = False
+                connected, self.standing = False, False
                 self.last_error = str(exc)
                 self._send(_Link(self.camera.name, "down", str(exc)))
                 continue
             if frame is None:
                 continue
-            last_frame = time.monotonic()
+            last_frame = self._activity.last_frame_s = time.monotonic()
+            self.standing = False
             if learning is None:
                 self._send(self.place(frame))
                 continue
@@ -209,8 +239,11 @@ class GigeStream:
             maxsize=settings.buffers * len(backends)
         )
         cameras = {c.name: c for c in settings.cameras}
+        activity = _Activity()
         self._readers = {
-            name: _Reader(cameras[name], backend, settings, self._queue, learnt[name].clock)
+            name: _Reader(
+                cameras[name], backend, settings, self._queue, learnt[name].clock, activity
+            )
             for name, backend in backends.items()
         }
         pairs = {name: learning.pairs() for name, learning in learnt.items()}
@@ -346,7 +379,7 @@ class GigeStream:
 
     def status(self) -> str:
         """The live line: per camera its lines per second since the last call, lines lost
-        and link state (``cam1 5300/s lost 0 up``)."""
+        and link state (``cam1 5300/s lost 0 up``; ``standing`` while the train stands)."""
         now = time.monotonic()
         parts = []
         for name, state in self._links.items():
@@ -354,6 +387,8 @@ class GigeStream:
             then, before = self._rate.get(name, (self._started, 0))
             rate = (counts.delivered - before) / max(now - then, 1e-9)
             self._rate[name] = (now, counts.delivered)
+            if state == "up" and self._readers[name].standing:
+                state = "standing"
             parts.append(f"{name} {rate:,.0f}/s lost {counts.lost:,} {state}")
         return " | ".join(parts)
 
@@ -464,26 +499,35 @@ def _preroll(settings: GigeSettings, backends: Mapping[str, CameraBackend]) -> d
     """Every camera's clock learnt from its first frames (:class:`_Learning`), read from all
     of them in turn until each has :data:`PREROLL_FRAMES`, so that the host times of the
     frames recorded do not move as the first estimates of the clock offset settle.
-    ``UserError`` naming a camera that gives no frame in ``timeout_s``."""
+    ``UserError`` naming a camera that gives no frame in ``timeout_s``, or, while the train
+    stands (module docstring), that does not answer."""
     cameras = {c.name: c for c in settings.cameras}
     learnt = {
         name: _Learning(settings, ClockTracker(), backend.frame_id_modulus)
         for name, backend in backends.items()
     }
-    waiting_since = dict.fromkeys(backends, time.monotonic())
+    activity = _Activity()
+    waiting_since = dict.fromkeys(backends, activity.last_frame_s)
     while not all(learning.done for learning in learnt.values()):
         for name, backend in backends.items():
             frame = backend.read(0.01)
             now = time.monotonic()
             if frame is None:
-                if now - waiting_since[name] > settings.timeout_s:
+                if now - waiting_since[name] <= settings.timeout_s:
+                    continue
+                if not activity.standing(settings, now):
                     raise UserError(
                         f"source 'gige': camera {cameras[name].device} delivered no frame in "
                         f"{settings.timeout_s:g} s (trigger {settings.trigger!r})"
                     )
+                try:
+                    backend.check()
+                except CameraUnavailable as exc:
+                    raise UserError(f"source 'gige': {exc}") from None
+                waiting_since[name] = now
                 continue
             learnt[name].add(frame)
-            waiting_since[name] = now
+            waiting_since[name] = activity.last_frame_s = now
     return learnt
 
 

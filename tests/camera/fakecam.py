@@ -81,9 +81,12 @@ def missing_addresses() -> list[str]:
     return [a for a in ADDRESSES if a not in have]
 
 
-def wide_genicam(path: Path) -> Path:
-    """Aravis's fake camera description with ``Width`` and ``OffsetX`` up to 16384, at
-    ``path``."""
+def wide_genicam(path: Path, line_trigger: bool = True) -> Path:
+    """Aravis's fake camera description with ``Width`` and ``OffsetX`` up to 16384 and
+    (``line_trigger``) a line-scan camera's ``LineStart`` trigger, at ``path``. The trigger's
+    settings are only stored (the fake camera's registers hold them): with encoder
+    triggering it sends its frames as a train at constant speed would have it, and stops
+    them (:meth:`FakeCamera.stand`) as the train standing would."""
     aravis = load_aravis()
     xml = aravis.FakeCamera.new("xml").get_genicam_xml()
     text = xml[0] if isinstance(xml, tuple) else xml
@@ -91,6 +94,11 @@ def wide_genicam(path: Path) -> Path:
         block = re.compile(rf'(<Integer Name="{name}".*?)<pMax>SensorWidth</pMax>', re.S)
         text, count = block.subn(rf"\1<Max>{MAX_WIDTH}</Max>", text, count=1)
         assert count == 1, name
+    entry = '<EnumEntry Name="AcquisitionStart" NameSpace="Standard">'
+    line_start = '<EnumEntry Name="LineStart" NameSpace="Standard"><Value>2</Value></EnumEntry>'
+    assert text.count(entry) == 1
+    if line_trigger:
+        text = text.replace(entry, line_start + entry)
     path.write_text(text)
     return path
 
@@ -150,6 +158,12 @@ class FakeCamera:
         self._callback = _FILL(fill)  # kept: the camera calls it until replaced
         _LIB.arv_fake_camera_set_fill_pattern(self._pointer, self._callback, None)
 
+    def stand(self, standing: bool) -> None:
+        """Stop sending frames, the camera still answering, or go on (an encoder-triggered
+        camera while the train stands, and when it moves again): its frame ids and lines go
+        on from where they stopped."""
+        _LIB.arv_fake_camera_write_register(self._pointer, ACQUISITION_REGISTER, int(not standing))
+
     def close(self) -> None:
         """Stop the camera (its thread and sockets go with the object). No full garbage
         collection: the other fake cameras fill their frames in Python, and one (0.2-0.8 s
@@ -157,7 +171,7 @@ class FakeCamera:
         past its next frame periods skips them without counting its frame id on, so the
         lines ``fill`` counts on sat 1-2 frames before the stamps the recorder places them
         by. Dropping the object joins the camera's thread (its polls last 0.1 s at most)."""
-        _LIB.arv_fake_camera_write_register(self._pointer, ACQUISITION_REGISTER, 0)
+        self.stand(True)
         time.sleep(0.5)  # the frame under way is sent; then the camera streams no more
         self.fill(None)  # no Python callback may run while the camera is finalised
         self.camera = self._fake = None

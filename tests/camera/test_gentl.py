@@ -18,6 +18,7 @@ from catenary.domain import CameraLines
 from catenary.errors import UserError
 from catenary.measurement.runfile import open_run
 from catenary_camera import gentl
+from catenary_camera.backend import CameraUnavailable
 from catenary_camera.gentl import GenTLCamera
 from catenary_camera.settings import parse_settings
 from catenary_camera.stream import open_gige
@@ -138,9 +139,12 @@ def test_a_camera_reopens_while_the_others_acquire() -> None:
         assert green.read(1.0) is not None
         red.connect()  # from the device list found when the first camera opened
         assert red.read(1.0) is not None and green.read(1.0) is not None
+        red.check()  # it answers a register read
     finally:
         red.disconnect()
         green.disconnect()
+    with pytest.raises(CameraUnavailable, match=r"camera .*red.*: not connected"):
+        red.check()
     assert gentl._HARVESTERS == {}
 
 

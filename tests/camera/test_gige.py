@@ -291,16 +291,132 @@ def test_region_of_interest_and_rate_reach_the_camera(cameras: dict[str, FakeCam
     assert blocks[0].cameras["cam1"].offset_px == 96
 
 
-def test_settings_a_camera_refuses_are_one_line(cameras: dict[str, FakeCamera]) -> None:
+def encoder_settings(**extra: object) -> dict[str, object]:
+    """``settings`` with encoder triggering (the fake cameras' frames at ``RATE_HZ`` lines
+    per second: a train at constant speed)."""
+    chosen = settings(trigger="encoder", metres_per_line=0.013, nominal_rate_hz=RATE_HZ, **extra)
+    del chosen["line_rate_hz"]
+    return chosen
+
+
+def test_settings_a_camera_refuses_are_one_line(
+    cameras: dict[str, FakeCamera], tmp_path: Path
+) -> None:
     chosen = settings()
     chosen["cameras"] = {"cam1": {"address": ADDRESSES[0], "width": 20000}}
     with pytest.raises(UserError, match=r"cam1 \(127\.0\.0\.2\): Width = 20000 refused"):
         open_gige(chosen)
-    encoder = settings(trigger="encoder", metres_per_line=0.013)
-    del encoder["line_rate_hz"]
-    with pytest.raises(UserError, match=r"cam1 .*no line trigger \(TriggerSelector entry LineSt"):
-        open_gige(encoder)
     open_gige({**settings(), "exposure_us": 500.0}).close()  # ExposureTimeAbs, the older name
+    cameras["cam1"].close()  # an area-scan camera in its place: no line trigger
+    area = FakeCamera(ADDRESSES[0], "CAT1", wide_genicam(tmp_path / "area.xml", False))
+    try:
+        encoder = encoder_settings()
+        encoder["cameras"] = {"cam1": {"address": ADDRESSES[0], "width": WIDTH}}
+        with pytest.raises(UserError, match=r"cam1 .*no line trigger \(TriggerSelector entry L"):
+            open_gige(encoder)
+    finally:
+        area.close()
+
+
+def stand(cameras: dict[str, FakeCamera], standing: bool) -> None:
+    for fake in cameras.values():
+        fake.stand(standing)
+
+
+def wait_for(condition: Any, timeout_s: float) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.1)
+    return True
+
+
+def recording(stream: GigeStream) -> tuple[threading.Thread, list[ScanBlock]]:
+    """A thread that records ``stream``'s blocks into the list, as ``catenary record`` does,
+    until the stream is closed."""
+    blocks: list[ScanBlock] = []
+
+    def run() -> None:
+        for block in stream.blocks(LINES):
+            blocks.append(block)
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    return thread, blocks
+
+
+def test_an_encoder_triggered_rig_stands_with_the_train_and_loses_nothing(
+    cameras: dict[str, FakeCamera],
+) -> None:
+    """No frame while the train stands (over twice ``timeout_s``): every camera answers, so
+    none is reconnected, and the lines go on by frame id when it moves, none lost."""
+    stream = open_gige(encoder_settings())
+    thread, blocks = recording(stream)
+    try:
+        assert wait_for(lambda: len(blocks) >= 5, 10.0)
+        stand(cameras, True)
+        assert wait_for(lambda: stream.status().count("standing") == len(NAMES), 15.0)
+        time.sleep(6.0)  # a reader asks its camera every timeout_s
+        assert stream.status().count("standing") == len(NAMES), stream.status()
+        stood = len(blocks)
+        stand(cameras, False)
+        assert wait_for(lambda: len(blocks) >= stood + 10, 15.0)
+        assert stream.status().count(" up") == len(NAMES), stream.status()
+    finally:
+        stream.close()
+        thread.join()
+    for name in NAMES:
+        _, valid = joined(blocks, name)
+        assert valid.mean() > 0.95, name
+        found, intact = offsets(blocks, name)
+        assert intact.all() and found.size == 1, (name, found)  # nothing lost or shifted
+    position = np.concatenate([b.position_m for b in blocks])
+    np.testing.assert_allclose(position, 0.013 * np.arange(position.size))
+    assert stream.summary().count(" 0 reconnections") == len(NAMES), stream.summary()
+    assert all(c.missing_frames == 0 for c in stream.counts().values()), stream.counts()
+
+
+def test_an_encoder_triggered_rig_waits_for_the_train_to_move_then_records(
+    cameras: dict[str, FakeCamera],
+) -> None:
+    """Recording started with the train standing (every packet of every camera lost: no
+    frame, the cameras answering): the cameras' first frames are waited for, past
+    ``timeout_s``, and recording starts when they come."""
+    for fake in cameras.values():
+        fake.set_loss(1000.0)
+    moving = threading.Timer(8.0, lambda: [f.set_loss(0.0) for f in cameras.values()])
+    moving.start()
+    try:
+        started = time.monotonic()
+        stream = open_gige(encoder_settings())
+        assert time.monotonic() - started > 8.0
+        blocks = record(stream, 200)
+    finally:
+        moving.cancel()
+    for name in NAMES:
+        found, intact = offsets(blocks, name)
+        assert intact.all() and found.size == 1, (name, found)
+
+
+def test_a_camera_that_stops_answering_while_the_train_stands_drops_off(
+    cameras: dict[str, FakeCamera],
+) -> None:
+    stream = open_gige(encoder_settings())
+    thread, blocks = recording(stream)
+    try:
+        assert wait_for(lambda: len(blocks) >= 1, 10.0)
+        stand(cameras, True)
+        assert wait_for(lambda: stream.status().count("standing") == len(NAMES), 15.0)
+        cameras["cam2"].close()  # its power lost: no answer
+        down = re.compile(r"cam2 [^|]* down")
+        assert wait_for(lambda: down.search(stream.status()), 20.0), stream.status()
+        assert stream.status().count("standing") == len(NAMES) - 1, stream.status()
+    finally:
+        stream.close()
+        thread.join()
+    problems = [line for line in stream.summary().splitlines() if "last problem" in line]
+    assert len(problems) == 1 and problems[0].startswith("camera cam2"), stream.summary()
 
 
 def test_an_absent_camera_is_one_line(cameras: dict[str, FakeCamera]) -> None:
