@@ -27,9 +27,11 @@ gap. Frame ids wrap (GigE Vision's 16-bit ids run 1-65535, then 1 again: ``frame
   producers may not) is timed by its frames' arrival on the host, which a busy host or link
   delays by any amount: its frames are never held or resynced as late, only as early.
 * Encoder-triggered lines (``quantum = N``): every camera sees the same encoder pulses, so
-  their frames hold the same lines; a camera's first frame goes to the nearest multiple of
-  ``N`` by time, then its ids alone carry it (the speed varies, so time cannot check it).
-  Scan times are interpolated between the frames' times.
+  their frames hold the same lines; a camera's first frame goes whole frames from the frame
+  of another camera nearest in time (from scan 0 at the run's start before any), counted
+  at the camera's current frame period, then its ids alone carry it (the speed varies, so
+  time cannot check it, and the nominal rate would misplace a frame by the run's speed
+  against it). Scan times are interpolated between the frames' times.
 
 Scans are handed out by :meth:`ScanAssembler.take` up to an index the caller decides (every
 camera past it, or a camera that dropped off given up for those scans).
@@ -88,7 +90,10 @@ class _Camera:
     dtype: np.dtype[np.uint8] | np.dtype[np.uint16]
     frames: list[tuple[int, Lines]] = field(default_factory=list)  # (first scan, lines)
     last_id: int | None = None
-    next_scan: int = 0  # where the next consecutive frame starts
+    # where the next consecutive frame starts; before the first frame, below every scan: a
+    # first frame wholly before scan 0 (the run starts at another camera's later frame)
+    # carries the next frames on from where it ends, not from scan 0
+    next_scan: int = -(2**62)
     # free-running: the frames held as late, oldest first: (first scan by id, how far [lines]
     # its time places it after that)
     held: deque[tuple[int, float]] = field(default_factory=deque)
@@ -106,7 +111,8 @@ class ScanAssembler:
         ``N``, lines in every frame.
     rate_hz : float
         The nominal line rate [Hz]: free-running, the scans' rate; encoder-triggered, used
-        to place first frames and to extrapolate times beyond the last frame.
+        to extrapolate times beyond the last frame, and to place a first frame whose
+        period is not given.
     start_s : float
         Host time [s] of scan 0 (the run's clock zero).
     encoder : bool
@@ -162,12 +168,16 @@ class ScanAssembler:
         time_s: float | None,
         lines: Lines | None,
         host_stamped: bool = False,
+        period_s: float | None = None,
     ) -> None:
         """A frame of ``name``: its id, its first line's host time [s] and its lines
         ``[N, W]``; an incomplete frame has lines None (invalid) and time None (a lost
         leader leaves a buffer's stamp stale): it is placed by its id alone, if at all.
         ``host_stamped``: the time is the frame's arrival on the host, which says it came
-        late, never that its lines were (no resync on it); early, it still moves it."""
+        late, never that its lines were (no resync on it); early, it still moves it.
+        ``period_s``: encoder-triggered, the camera's frame period at this frame [s] (its
+        last frames'), by which a frame placed by time is placed (module docstring; None:
+        ``N`` lines at the nominal rate)."""
         camera = self._cameras[name]
         n = self.lines_per_frame
         step = 0 if camera.last_id is None else frame_id - camera.last_id
@@ -184,8 +194,11 @@ class ScanAssembler:
         # the scan of its first line, by time
         measured = math.nan if time_s is None else (time_s - self.start_s) * self.rate_hz
         if by_time:
-            quantum = n if self.encoder else 1
-            first = quantum * round(measured / quantum)
+            if self.encoder:
+                assert time_s is not None
+                first = self._frame_at(time_s - self.start_s, period_s or n / self.rate_hz)
+            else:
+                first = round(measured)
             camera.held.clear()
         else:
             first = camera.next_scan + (step - 1) * n
@@ -203,6 +216,15 @@ class ScanAssembler:
         if self.encoder and first >= self.next_scan and time_s is not None:
             self._anchors.append((first, time_s - self.start_s))
         camera.next_scan = max(camera.next_scan, first + n)
+
+    def _frame_at(self, elapsed_s: float, period_s: float) -> int:
+        """Encoder-triggered: the scan of a frame ``elapsed_s`` after the run's start, whole
+        frames of ``period_s`` from the frame of another camera nearest in time (from scan 0
+        at the start where there is none)."""
+        scan, time_s = 0, 0.0
+        if self._anchors:
+            scan, time_s = min(self._anchors, key=lambda anchor: abs(anchor[1] - elapsed_s))
+        return scan + self.lines_per_frame * round((elapsed_s - time_s) / period_s)
 
     def _check_time(self, camera: _Camera, lateness: float, first: int, host_stamped: bool) -> int:
         """How far [lines] to move a free-running frame placed at scan ``first`` by its id,

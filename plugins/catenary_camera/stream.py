@@ -81,13 +81,15 @@ def _dtype(pixel_format: str) -> np.dtype[np.uint8] | np.dtype[np.uint16]:
 @dataclass(frozen=True)
 class _Placed:
     """A frame ready for the assembler: its id, first line's host time [s] and lines;
-    ``host_stamped``: that time is the host's (``Frame.host_stamped``)."""
+    ``host_stamped``: that time is the host's (``Frame.host_stamped``); ``period_s``: the
+    camera's frame period there [s], for a frame placed by time (``ScanAssembler.add``)."""
 
     name: str
     frame_id: int
     time_s: float | None  # None: an incomplete frame, whose stamp may be stale
     lines: np.ndarray[Any, Any] | None
     host_stamped: bool = False
+    period_s: float | None = None
 
 
 class _Activity:
@@ -141,9 +143,11 @@ class _Reader(threading.Thread):
         self.last_error = ""
         self.last_device_s = math.nan  # the device time of the last frame [s]
 
-    def place(self, frame: Frame, *, tracked: bool = False) -> _Placed:
+    def place(
+        self, frame: Frame, *, tracked: bool = False, period_s: float | None = None
+    ) -> _Placed:
         """Map the frame's time to the host clock (``tracked``: its times are in the
-        tracker already) and unpack its lines."""
+        tracker already) and unpack its lines (``period_s``: :class:`_Placed`)."""
         if not frame.complete:  # a lost leader leaves the buffer's stamps stale
             return _Placed(self.camera.name, frame.frame_id, None, None)
         if not tracked:
@@ -159,7 +163,9 @@ class _Reader(threading.Thread):
                 self.last_error = f"frame of {lines.shape[0]} lines"
                 lines = None
         time_s = self._host_s(frame.device_time_s)
-        return _Placed(self.camera.name, frame.frame_id, time_s, lines, frame.host_stamped)
+        return _Placed(
+            self.camera.name, frame.frame_id, time_s, lines, frame.host_stamped, period_s
+        )
 
     def _host_s(self, device_s: float) -> float:
         assert self.placing is not None  # set from the pre-roll (GigeStream) or settling
@@ -218,7 +224,7 @@ class _Reader(threading.Thread):
                 if self.placing is None:
                     self.placing = _placing(*learning.pairs(), settings)
                 self._send(_Link(self.camera.name, "up"))
-                self._send(self.place(learning.last, tracked=True))
+                self._send(self.place(learning.last, tracked=True, period_s=learning.period_s))
                 learning = None
         self.backend.disconnect()
 
@@ -257,7 +263,7 @@ class GigeStream:
         for name, reader in self._readers.items():
             reader.placing = shared or _placing(*pairs[name], settings)
         placed = [
-            self._readers[name].place(learning.last, tracked=True)
+            self._readers[name].place(learning.last, tracked=True, period_s=learning.period_s)
             for name, learning in learnt.items()
             if learning.last is not None
         ]
@@ -291,7 +297,12 @@ class GigeStream:
         )
         for frame in placed:
             self._assembler.add(
-                frame.name, frame.frame_id, frame.time_s, frame.lines, frame.host_stamped
+                frame.name,
+                frame.frame_id,
+                frame.time_s,
+                frame.lines,
+                frame.host_stamped,
+                frame.period_s,
             )
         for reader in self._readers.values():
             reader.start()
@@ -312,7 +323,12 @@ class GigeStream:
                     self._assembler.restart(item.name)
             else:
                 self._assembler.add(
-                    item.name, item.frame_id, item.time_s, item.lines, item.host_stamped
+                    item.name,
+                    item.frame_id,
+                    item.time_s,
+                    item.lines,
+                    item.host_stamped,
+                    item.period_s,
                 )
             try:
                 item = self._queue.get_nowait()
@@ -467,12 +483,16 @@ class _Learning:
     earliest its predecessors allow (:func:`_steadied`). ``last`` is the last frame learnt
     from (the first to record), ``done`` once :data:`PREROLL_FRAMES` were."""
 
+    PERIOD_FRAMES = 4
+    """The last frames learnt whose periods give ``period_s``."""
+
     def __init__(self, settings: GigeSettings, clock: ClockTracker, modulus: int | None) -> None:
         self._settings = settings
         self.clock = clock
         self._modulus = modulus
         self._started = False
         self._times: list[tuple[float, float]] = []
+        self._ids: list[int] = []
         self.last: Frame | None = None
 
     @property
@@ -485,9 +505,24 @@ class _Learning:
             return
         self.clock.add(frame.device_time_s, frame.host_time_s)
         self._times.append((frame.device_time_s, frame.host_time_s))
+        self._ids.append(frame.frame_id)
         if self._settings.trigger == "free" and self.last is not None:
             frame = _steadied(frame, self.last, self._settings, self._modulus)
         self.last = frame
+
+    @property
+    def period_s(self) -> float | None:
+        """The camera's frame period at its last frames learnt [s]: the median of their
+        device times' steps per frame id (``PERIOD_FRAMES``); None before two."""
+        ids = np.array(self._ids[-self.PERIOD_FRAMES :], dtype=np.int64)
+        device = np.array([t for t, _ in self._times[-self.PERIOD_FRAMES :]])
+        step = np.diff(ids)
+        if self._modulus is not None:
+            step %= self._modulus
+        usable = step > 0
+        if not usable.any():
+            return None
+        return float(np.median(np.diff(device)[usable] / step[usable]))
 
     def pairs(self) -> tuple[FloatArray, FloatArray]:
         """The (device, host) times [s] learnt from, each ``[k]``."""

@@ -188,6 +188,44 @@ def test_a_reconnected_camera_is_placed_by_time_again() -> None:
     check_in_place(scans.lines["a"], scans.valid["a"])
 
 
+def test_encoder_first_frames_are_placed_in_frames_of_the_speed_not_of_the_nominal_rate() -> None:
+    """At a third of the nominal speed a frame takes 24 ms, not 8: a camera whose first
+    frame is two frames before another's (the run's scan 0) starts two frames before it (the
+    nominal rate put it six), and its next frames go on from there, not from scan 0."""
+    asm = assembler(encoder=True)
+    period = 3 * N / RATE
+    asm.add("a", 1, T0 - 2 * period, frame(-2 * N), period_s=period)
+    asm.add("b", 5, T0, frame(0), period_s=period)
+    for k in range(1, 5):
+        asm.add("a", 1 + k, T0 + (k - 2) * period, frame((k - 2) * N))
+        asm.add("b", 5 + k, T0 + k * period, frame(k * N))
+    scans = asm.take(3 * N)
+    for name in "ab":
+        assert scans.valid[name].all(), name
+        check_in_place(scans.lines[name], scans.valid[name])
+
+
+def test_encoder_a_camera_back_is_placed_by_the_other_cameras_frames() -> None:
+    """At a quarter of the nominal speed a camera that dropped off comes back (new frame
+    ids) 3 ms after the other camera's frame of the same lines: it goes where that frame
+    went, not where the time since the start would put it at the nominal rate (40 frames
+    on, not 10)."""
+    asm = assembler(encoder=True)
+    period = 4 * N / RATE
+    for k in range(4):
+        asm.add("a", 100 + k, T0 + k * period, frame(k * N), period_s=period)
+        asm.add("b", 7 + k, T0 + k * period, frame(k * N), period_s=period)
+    asm.restart("a")
+    for k in range(4, 12):
+        asm.add("b", 7 + k, T0 + k * period, frame(k * N))
+        if k >= 10:
+            asm.add("a", k - 9, T0 + k * period + 0.003, frame(k * N), period_s=period)
+    scans = asm.take(12 * N)
+    check_in_place(scans.lines["a"], scans.valid["a"])
+    assert scans.valid["a"][: 4 * N].all() and scans.valid["a"][10 * N :].all()
+    assert not scans.valid["a"][4 * N : 10 * N].any()
+
+
 def test_encoder_lines_align_first_frames_to_whole_frames_and_interpolate_times() -> None:
     asm = assembler(encoder=True)
     # the train slows down: frames of N lines take 8, then 16 ms; b's first frame is 2 ms late
