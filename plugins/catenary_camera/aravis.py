@@ -8,7 +8,9 @@ GigE Vision call. Frames come from ``ArvStream.timeout_pop_buffer`` (which waits
 holding Python's GIL) and their buffer goes straight back to the stream.
 
 A lost connection is noticed by the reader waiting too long for a frame
-(:mod:`catenary_camera.stream`), which then disconnects and reconnects. The device's
+(:mod:`catenary_camera.stream`), which then disconnects and reconnects; with encoder
+triggering, while the train stands, by ``check`` (a read of ``Width``, the register cache
+off, so that it asks the camera). The device's
 ``control-lost`` signal (Aravis's heartbeat) is not used: it runs its Python handler in the
 heartbeat's own thread, whose wrapper of the device then held the last reference when the
 reader had let the camera go, so that the device was finalised in that thread, which cannot
@@ -130,6 +132,7 @@ class AravisCamera:
             raise CameraUnavailable(f"camera {settings.device}: cannot open ({problem})") from None
         self._camera = camera
         camera.set_range_check_policy(aravis.RangeCheckPolicy.ENABLE)
+        camera.get_device().set_register_cache_policy(aravis.RegisterCachePolicy.DISABLE)
         try:
             configure(_Features(aravis, camera, settings.device), settings, self._acquisition)
             if settings.packet_size is not None:
@@ -172,7 +175,7 @@ class AravisCamera:
     def check(self) -> None:
         if self._camera is None:
             raise CameraUnavailable(f"camera {self._settings.device}: not connected")
-        try:  # Aravis caches no register by default: this asks the camera
+        try:  # no register cache (connect): this asks the camera
             self._camera.get_integer("Width")
         except Exception as exc:  # GLib.Error: no answer
             device, problem = self._settings.device, one_line(exc)

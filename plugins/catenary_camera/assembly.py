@@ -28,8 +28,9 @@ gap. Frame ids wrap (GigE Vision's 16-bit ids run 1-65535, then 1 again: ``frame
   delays by any amount: its frames are never held or resynced as late, only as early.
 * Encoder-triggered lines (``quantum = N``): every camera sees the same encoder pulses, so
   their frames hold the same lines; a camera's first frame goes whole frames from the frame
-  of another camera nearest in time (from scan 0 at the run's start before any), counted
-  at the camera's current frame period, then its ids alone carry it (the speed varies, so
+  of another camera nearest in time (from scan 0 at the run's start before any; from its
+  own before it dropped off where every camera did), counted at the camera's current frame
+  period, then its ids alone carry it (the speed varies, so
   time cannot check it, and the nominal rate would misplace a frame by the run's speed
   against it). Scan times are interpolated between the frames' times.
 
@@ -98,6 +99,14 @@ class _Camera:
     # its time places it after that)
     held: deque[tuple[int, float]] = field(default_factory=deque)
     counts: CameraCounts = field(default_factory=CameraCounts)
+
+
+def _plausible(period_s: float | None, nominal_s: float) -> float:
+    """``period_s`` where it is finite and at least a quarter of ``nominal_s`` (the train at
+    no more than four times its nominal speed), else ``nominal_s`` [s]."""
+    if period_s is None or not math.isfinite(period_s) or period_s < 0.25 * nominal_s:
+        return nominal_s
+    return period_s
 
 
 class ScanAssembler:
@@ -176,8 +185,10 @@ class ScanAssembler:
         ``host_stamped``: the time is the frame's arrival on the host, which says it came
         late, never that its lines were (no resync on it); early, it still moves it.
         ``period_s``: encoder-triggered, the camera's frame period at this frame [s] (its
-        last frames'), by which a frame placed by time is placed (module docstring; None:
-        ``N`` lines at the nominal rate)."""
+        last frames'), by which a frame placed by time is placed (module docstring; None,
+        or not finite, or under a quarter of ``N`` lines at the nominal rate, the train at
+        over four times its nominal speed, as with a host's bunched stamps: ``N`` lines at
+        the nominal rate)."""
         camera = self._cameras[name]
         n = self.lines_per_frame
         step = 0 if camera.last_id is None else frame_id - camera.last_id
@@ -196,7 +207,8 @@ class ScanAssembler:
         if by_time:
             if self.encoder:
                 assert time_s is not None
-                first = self._frame_at(time_s - self.start_s, period_s or n / self.rate_hz)
+                period = _plausible(period_s, n / self.rate_hz)
+                first = self._frame_at(time_s - self.start_s, period)
             else:
                 first = round(measured)
             camera.held.clear()
@@ -219,8 +231,10 @@ class ScanAssembler:
 
     def _frame_at(self, elapsed_s: float, period_s: float) -> int:
         """Encoder-triggered: the scan of a frame ``elapsed_s`` after the run's start, whole
-        frames of ``period_s`` from the frame of another camera nearest in time (from scan 0
-        at the start where there is none)."""
+        frames of ``period_s`` from the frame nearest in time placed and not handed out yet
+        (another camera's; its own before it dropped off only where no other is nearer: after
+        every camera dropped off, the gap is counted at the current period), from scan 0 at
+        the start where there is none."""
         scan, time_s = 0, 0.0
         if self._anchors:
             scan, time_s = min(self._anchors, key=lambda anchor: abs(anchor[1] - elapsed_s))

@@ -18,9 +18,9 @@ Keys of the source's settings (``--source-option KEY=VALUE`` or ``[record] sourc
 ``lines_per_frame``      lines per camera frame (the camera's ``Height``) (256)
 ``buffers``              frame buffers queued per camera (32)
 ``timeout_s``            a camera that delivers nothing this long is taken as dropped off and
-                         reconnected [s] (2.0); with ``encoder`` trigger, when no camera has
-                         (the train stands), only one that answers no register read
-                         (``catenary_camera.stream``, Standing)
+                         reconnected [s] (2.0); with ``encoder`` trigger, when none of them
+                         has, the train stands, and only a camera that answers no register
+                         read is (``catenary_camera.stream``, Standing)
 ``reconnect_interval_s`` the wait between reconnection attempts [s] (1.0)
 ``synchronized_clocks``  the cameras' timestamps are on one clock (IEEE 1588 PTP, GigE Vision
                          2): frames are placed by them, every camera alike (false: each

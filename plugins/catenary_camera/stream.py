@@ -2,7 +2,8 @@
 
 :func:`open_gige` connects every camera, configures it and starts it, then reads
 :data:`PREROLL_FRAMES` frames of each (a camera that gives none in ``timeout_s`` is one line
-naming it, as is one that cannot be opened or refuses a setting). Their (device, host) time
+naming it, as is one that cannot be opened or refuses a setting; with encoder triggering,
+while none gives any and all answer, the train stands: see Standing). Their (device, host) time
 pairs give the offset that maps the camera's timestamps to the host clock for placing its
 frames (the least-delay fit of :func:`~catenary_camera.clock.fit_clock`, its drift left out:
 the scans' clock is the cameras'; with ``synchronized_clocks`` one offset from all cameras'
@@ -29,9 +30,11 @@ the train stands no camera sends a frame: when none of them has for ``timeout_s`
 reader asks its camera for a register (:meth:`~catenary_camera.backend.CameraBackend.check`)
 every ``timeout_s`` instead; a camera that answers is standing, not dropped off, and its
 frames go on by their ids when the train moves (nothing is lost, nothing learnt again). One
-that does not answer drops off as above. A camera silent while another sends frames has
-dropped off (the encoder drives them all). Recording may start with the train standing: the
-cameras' first frames are waited for as long as they all answer.
+that does not answer drops off as above. A camera silent while the others went on sending
+frames for half ``timeout_s`` after its last has dropped off (the encoder drives them all;
+their last frames before a stop, and their first after it, arrive a few ms apart).
+Recording may start with the train standing: the cameras' first frames are waited for as
+long as they all answer (logged once).
 
 **Positions.** Free-running: ``position_m`` is NaN and the stream declares
 ``positions_from_encoder``: the recorder interpolates the CAN encoder to the scan times.
@@ -47,6 +50,7 @@ missing, frames incomplete, late lines, resyncs), reconnections, clock offset an
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import queue
 import threading
@@ -69,6 +73,8 @@ from .pixels import PIXEL_FORMATS, unpack_lines
 from .settings import CameraSettings, GigeSettings, parse_settings
 
 __all__ = ["GigeStream", "open_gige"]
+
+_LOG = logging.getLogger(__name__)
 
 READ_TIMEOUT_S = 0.05  # a reader's longest wait for a frame before it checks for stop
 PREROLL_FRAMES = 8  # frames of each camera read into its clock tracker before recording
@@ -94,15 +100,24 @@ class _Placed:
 
 class _Activity:
     """When any of the rig's cameras last sent a frame [s, ``time.monotonic``], which every
-    reader updates: with encoder triggering, all silent is the train standing."""
+    reader updates: with encoder triggering, all silent is the train standing (module
+    docstring)."""
 
     def __init__(self) -> None:
         self.last_frame_s = time.monotonic()
 
+    def left_behind(self, settings: GigeSettings, last_s: float) -> bool:
+        """Whether a camera silent for ``timeout_s`` since ``last_s`` (its last frame or
+        answer) has dropped off: always when free-running; with encoder triggering when the
+        others sent frames half ``timeout_s`` after it."""
+        if settings.trigger != "encoder":
+            return True
+        return self.last_frame_s - last_s > 0.5 * settings.timeout_s
+
     def standing(self, settings: GigeSettings, now: float) -> bool:
-        """Whether the train may be standing: encoder triggering, and no camera has sent a
-        frame for ``timeout_s``."""
-        return settings.trigger == "encoder" and now - self.last_frame_s > settings.timeout_s
+        """Whether the train may be standing: no camera has sent a frame for ``timeout_s``
+        (with encoder triggering: ``left_behind`` decides first)."""
+        return now - self.last_frame_s > settings.timeout_s
 
 
 @dataclass(frozen=True)
@@ -202,10 +217,11 @@ class _Reader(threading.Thread):
                 frame = self.backend.read(READ_TIMEOUT_S)
                 now = time.monotonic()
                 if frame is None and now - last_frame > settings.timeout_s:
-                    if not self._activity.standing(settings, now):
+                    if self._activity.left_behind(settings, last_frame):
                         raise CameraUnavailable(f"no frame for {settings.timeout_s:g} s")
-                    self.backend.check()  # it answers: standing
-                    self.standing, last_frame = True, now
+                    if self._activity.standing(settings, now):  # else: the others stopped
+                        self.backend.check()  # with it; it answers: standing
+                        self.standing, last_frame = True, now
             except CameraUnavailable as exc:
                 self.backend.disconnect()
                 connected, self.standing = False, False
@@ -513,13 +529,15 @@ class _Learning:
     @property
     def period_s(self) -> float | None:
         """The camera's frame period at its last frames learnt [s]: the median of their
-        device times' steps per frame id (``PERIOD_FRAMES``); None before two."""
+        device times' steps per frame id (``PERIOD_FRAMES``; ids gone back apart); None
+        before two (``ScanAssembler.add`` also sets aside an implausible one)."""
         ids = np.array(self._ids[-self.PERIOD_FRAMES :], dtype=np.int64)
         device = np.array([t for t, _ in self._times[-self.PERIOD_FRAMES :]])
         step = np.diff(ids)
+        usable = step > 0
         if self._modulus is not None:
             step %= self._modulus
-        usable = step > 0
+            usable = (step > 0) & (step <= self._modulus // 2)
         if not usable.any():
             return None
         return float(np.median(np.diff(device)[usable] / step[usable]))
@@ -543,6 +561,7 @@ def _preroll(settings: GigeSettings, backends: Mapping[str, CameraBackend]) -> d
     }
     activity = _Activity()
     waiting_since = dict.fromkeys(backends, activity.last_frame_s)
+    waited = False
     while not all(learning.done for learning in learnt.values()):
         for name, backend in backends.items():
             frame = backend.read(0.01)
@@ -550,15 +569,24 @@ def _preroll(settings: GigeSettings, backends: Mapping[str, CameraBackend]) -> d
             if frame is None:
                 if now - waiting_since[name] <= settings.timeout_s:
                     continue
-                if not activity.standing(settings, now):
+                if activity.left_behind(settings, waiting_since[name]):
                     raise UserError(
                         f"source 'gige': camera {cameras[name].device} delivered no frame in "
                         f"{settings.timeout_s:g} s (trigger {settings.trigger!r})"
                     )
+                if not activity.standing(settings, now):
+                    continue
                 try:
                     backend.check()
                 except CameraUnavailable as exc:
                     raise UserError(f"source 'gige': {exc}") from None
+                if not waited:
+                    waited = True
+                    _LOG.warning(
+                        "source 'gige': no camera has sent a frame for %g s and all answer: "
+                        "waiting for the train to move (trigger 'encoder')",
+                        settings.timeout_s,
+                    )
                 waiting_since[name] = now
                 continue
             learnt[name].add(frame)

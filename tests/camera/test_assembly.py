@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -224,6 +226,41 @@ def test_encoder_a_camera_back_is_placed_by_the_other_cameras_frames() -> None:
     check_in_place(scans.lines["a"], scans.valid["a"])
     assert scans.valid["a"][: 4 * N].all() and scans.valid["a"][10 * N :].all()
     assert not scans.valid["a"][4 * N : 10 * N].any()
+
+
+@pytest.mark.parametrize("period_s", [math.nan, 1e-5, None])
+def test_encoder_an_implausible_period_gives_way_to_the_nominal_rate(
+    period_s: float | None,
+) -> None:
+    """A period that is no number, or one of a train at over four times its nominal speed
+    (a host's bunched stamps), places a camera back by the nominal rate, as with none."""
+    asm = assembler(encoder=True)
+    period = N / RATE
+    for k in range(4):
+        asm.add("a", 100 + k, T0 + k * period, frame(k * N))
+        asm.add("b", 7 + k, T0 + k * period, frame(k * N))
+    asm.restart("a")
+    asm.add("b", 11, T0 + 4 * period, frame(4 * N))
+    asm.add("a", 1, T0 + 4 * period + 0.001, frame(4 * N), period_s=period_s)
+    scans = asm.take(5 * N)
+    assert scans.valid["a"].all()
+    check_in_place(scans.lines["a"], scans.valid["a"])
+
+
+def test_a_first_frame_before_scan_0_carries_the_next_on_from_where_it_ends() -> None:
+    """Free-running: a camera whose first frame ends a line before the run's scan 0 (the
+    other camera's first) goes on from there, not from scan 0 (a line off for the whole run:
+    within ``resync_lines``, never moved back)."""
+    asm = assembler()
+    asm.add("b", 7, T0, frame(0))
+    asm.add("a", 100, T0 - (N + 1) / RATE, frame(-N - 1))
+    for k in range(1, 5):
+        asm.add("b", 7 + k, T0 + k * N / RATE, frame(k * N))
+        asm.add("a", 100 + k, T0 + ((k - 1) * N - 1) / RATE, frame((k - 1) * N - 1))
+    scans = asm.take(3 * N)
+    for name in "ab":
+        assert scans.valid[name].all(), name
+        check_in_place(scans.lines[name], scans.valid[name])
 
 
 def test_encoder_lines_align_first_frames_to_whole_frames_and_interpolate_times() -> None:

@@ -318,9 +318,11 @@ def test_settings_a_camera_refuses_are_one_line(
         area.close()
 
 
-def stand(cameras: dict[str, FakeCamera], standing: bool) -> None:
+def stand(cameras: dict[str, FakeCamera], standing: bool, apart_s: float = 0.0) -> None:
+    """Stop (or start) the fake cameras' frames, ``apart_s`` after one another."""
     for fake in cameras.values():
         fake.stand(standing)
+        time.sleep(apart_s)
 
 
 def wait_for(condition: Any, timeout_s: float) -> bool:
@@ -350,12 +352,14 @@ def test_an_encoder_triggered_rig_stands_with_the_train_and_loses_nothing(
     cameras: dict[str, FakeCamera],
 ) -> None:
     """No frame while the train stands (over twice ``timeout_s``): every camera answers, so
-    none is reconnected, and the lines go on by frame id when it moves, none lost."""
+    none is reconnected, and the lines go on by frame id when it moves, none lost. The
+    cameras stop 0.4 s apart (a camera whose last frame came first is not taken for one
+    dropped off while the others still send theirs)."""
     stream = open_gige(encoder_settings())
     thread, blocks = recording(stream)
     try:
         assert wait_for(lambda: len(blocks) >= 5, 10.0)
-        stand(cameras, True)
+        stand(cameras, True, apart_s=0.4)
         assert wait_for(lambda: stream.status().count("standing") == len(NAMES), 15.0)
         time.sleep(6.0)  # a reader asks its camera every timeout_s
         assert stream.status().count("standing") == len(NAMES), stream.status()
