@@ -11,9 +11,6 @@ pairs), less ``arrival_lag_frames`` frame periods (a frame arrives, at the quick
 long after its first line); each frame's time is also the earliest its predecessors allow
 (stamps come late, never early). The run's scan 0 is the last of those frames that comes, and
 :attr:`GigeStream.clock_zero_unix_s` its host time (the recorder aligns the CAN bus to it).
-With encoder triggering those frames are recorded too (their times only choose each
-camera's first frame, the ids carry it on): scan 0 is the latest camera's first of them, so
-that a run started with the train standing begins where it moves off.
 
 One reader thread per camera pops its frames (:class:`~catenary_camera.backend.CameraBackend`),
 feeds their times to a :class:`~catenary_camera.clock.ClockTracker` (offset and drift over
@@ -25,8 +22,8 @@ a block whenever every connected camera has delivered its lines.
 **Dropping off.** A camera that delivers nothing for ``timeout_s`` is disconnected and
 reconnected every ``reconnect_interval_s``, while the others record on: the scans it misses
 are handed out without its line (``valid = False``). Back, its first :data:`PREROLL_FRAMES`
-frames teach its clock again (as when recording started; their lines are not kept: their
-scans were handed out without them) and the next is placed by time.
+frames teach its clock again (as when recording started; their lines are not kept) and the
+next is placed by time.
 
 **Standing.** With encoder triggering a camera takes a line per encoder pulse, so that while
 the train stands no camera sends a frame: when none of them has for ``timeout_s``, each
@@ -281,16 +278,12 @@ class GigeStream:
             )
         for name, reader in self._readers.items():
             reader.placing = shared or _placing(*pairs[name], settings)
-        recorded = [
-            [self._readers[name].place(f, tracked=True, period_s=p) for f, p in learning.recorded()]
+        placed = [
+            self._readers[name].place(learning.last, tracked=True, period_s=learning.period_s)
             for name, learning in learnt.items()
+            if learning.last is not None
         ]
-        self.clock_zero_unix_s = max(  # every camera's first frame recorded is at or before it
-            frames[0].time_s for frames in recorded if frames and frames[0].time_s is not None
-        )
-        # each camera from its frame nearest scan 0 in time (the lines before are not in the
-        # run), so that its time alone places it, whatever the speed
-        placed = [f for frames in recorded for f in _from_nearest(frames, self.clock_zero_unix_s)]
+        self.clock_zero_unix_s = max(p.time_s for p in placed if p.time_s is not None)
         modulus = {backend.frame_id_modulus for backend in backends.values()}
         self._assembler = ScanAssembler(
             {c.name: (c.width, _dtype(c.pixel_format)) for c in settings.cameras},
@@ -466,12 +459,6 @@ class GigeStream:
             reader.join()
 
 
-def _from_nearest(frames: list[_Placed], time_s: float) -> list[_Placed]:
-    """``frames`` from the one whose time is nearest ``time_s`` [s] on."""
-    gaps = [math.inf if f.time_s is None else abs(f.time_s - time_s) for f in frames]
-    return frames[int(np.argmin(gaps)) :] if frames else []
-
-
 def _placing(device_s: FloatArray, host_s: FloatArray, settings: GigeSettings) -> ClockFit:
     """The mapping that places frames (the host time of a frame's first line), from a few
     (device, host) time pairs [s]: their clock fit's offset at the last of them, less the
@@ -510,7 +497,7 @@ class _Learning:
     incomplete ones (whose stamps may be stale) are not learnt from; the others' (device,
     host) times go into ``clock`` (a :class:`ClockTracker`) and each one's time is the
     earliest its predecessors allow (:func:`_steadied`). ``last`` is the last frame learnt
-    from, ``done`` once :data:`PREROLL_FRAMES` were; :meth:`recorded` the frames recorded."""
+    from (the first to record), ``done`` once :data:`PREROLL_FRAMES` were."""
 
     PERIOD_FRAMES = 4
     """The last frames learnt whose periods give ``period_s``."""
@@ -522,7 +509,6 @@ class _Learning:
         self._started = False
         self._times: list[tuple[float, float]] = []
         self._ids: list[int] = []
-        self._frames: list[Frame] = []  # encoder triggering: the frames learnt, all recorded
         self.last: Frame | None = None
 
     @property
@@ -538,31 +524,15 @@ class _Learning:
         self._ids.append(frame.frame_id)
         if self._settings.trigger == "free" and self.last is not None:
             frame = _steadied(frame, self.last, self._settings, self._modulus)
-        if self._settings.trigger == "encoder":
-            self._frames.append(frame)
         self.last = frame
-
-    def recorded(self) -> list[tuple[Frame, float | None]]:
-        """The frames learnt that a run starts with, in order, each with the frame period
-        [s] by which it is placed if placed by time (``ScanAssembler.add``): free-running
-        the last alone (its predecessors' times still settling); encoder-triggered all of
-        them, the first with the period of the first frames (the train may be moving off)."""
-        if self._settings.trigger == "encoder" and self._frames:
-            first = self._period(slice(0, self.PERIOD_FRAMES))
-            return [(self._frames[0], first)] + [(frame, None) for frame in self._frames[1:]]
-        return [] if self.last is None else [(self.last, self.period_s)]
 
     @property
     def period_s(self) -> float | None:
-        """The camera's frame period at its last frames learnt [s] (:meth:`_period`)."""
-        return self._period(slice(-self.PERIOD_FRAMES, None))
-
-    def _period(self, frames: slice) -> float | None:
-        """The frame period at the frames learnt ``frames`` [s]: the median of their device
-        times' steps per frame id (ids gone back apart); None without two
-        (``ScanAssembler.add`` also sets aside an implausible one)."""
-        ids = np.array(self._ids[frames], dtype=np.int64)
-        device = np.array([t for t, _ in self._times[frames]])
+        """The camera's frame period at its last frames learnt [s]: the median of their
+        device times' steps per frame id (``PERIOD_FRAMES``; ids gone back apart); None
+        before two (``ScanAssembler.add`` also sets aside an implausible one)."""
+        ids = np.array(self._ids[-self.PERIOD_FRAMES :], dtype=np.int64)
+        device = np.array([t for t, _ in self._times[-self.PERIOD_FRAMES :]])
         step = np.diff(ids)
         usable = step > 0
         if self._modulus is not None:

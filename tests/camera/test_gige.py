@@ -386,8 +386,7 @@ def test_an_encoder_triggered_rig_waits_for_the_train_to_move_then_records(
 ) -> None:
     """Recording started with the train standing (every packet of every camera lost: no
     frame, the cameras answering): the cameras' first frames are waited for, past
-    ``timeout_s``, and recording starts when they come, with the frames that taught the
-    cameras' clocks (scan 0 is where the train moved off, 7 frames before the 8th)."""
+    ``timeout_s``, and recording starts when they come."""
     for fake in cameras.values():
         fake.set_loss(1000.0)
     moving = threading.Timer(8.0, lambda: [f.set_loss(0.0) for f in cameras.values()])
@@ -395,7 +394,6 @@ def test_an_encoder_triggered_rig_waits_for_the_train_to_move_then_records(
     try:
         started = time.monotonic()
         stream = open_gige(encoder_settings())
-        opened = time.time()
         assert time.monotonic() - started > 8.0
         blocks = record(stream, 200)
     finally:
@@ -403,9 +401,6 @@ def test_an_encoder_triggered_rig_waits_for_the_train_to_move_then_records(
     for name in NAMES:
         found, intact = offsets(blocks, name)
         assert intact.all() and found.size == 1, (name, found)
-    frame_times = np.concatenate([b.time_s for b in blocks])[::LINES]
-    period = float(np.median(np.diff(frame_times)))
-    assert opened - stream.clock_zero_unix_s > 5.0 * period, (opened, stream.clock_zero_unix_s)
 
 
 def test_a_camera_that_stops_answering_while_the_train_stands_drops_off(
