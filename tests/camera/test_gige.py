@@ -28,6 +28,7 @@ import pytest
 
 from catenary.domain import ScanBlock
 from catenary.errors import UserError
+from catenary_camera.aravis import AravisCamera
 from catenary_camera.backend import Frame
 from catenary_camera.settings import parse_settings
 from catenary_camera.stream import GigeStream, _steadied, open_gige
@@ -306,7 +307,13 @@ def test_settings_a_camera_refuses_are_one_line(
     chosen["cameras"] = {"cam1": {"address": ADDRESSES[0], "width": 20000}}
     with pytest.raises(UserError, match=r"cam1 \(127\.0\.0\.2\): Width = 20000 refused"):
         open_gige(chosen)
-    open_gige({**settings(), "exposure_us": 500.0}).close()  # ExposureTimeAbs, the older name
+    # ExposureTimeAbs, the older name, accepted: the camera configured and started (no frame
+    # waited for: an in-process fake camera just started was once silent for 5 s here, after
+    # the refused open; README, Live cameras)
+    chosen = parse_settings({**settings(), "exposure_us": 500.0})
+    camera = AravisCamera(chosen.cameras[0], chosen)
+    camera.connect()
+    camera.disconnect()
     cameras["cam1"].close()  # an area-scan camera in its place: no line trigger
     area = FakeCamera(ADDRESSES[0], "CAT1", wide_genicam(tmp_path / "area.xml", False))
     try:
