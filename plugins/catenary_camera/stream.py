@@ -312,14 +312,7 @@ class GigeStream:
             camera_offset_px={c.name: c.offset_px for c in settings.cameras},
         )
         for frame in placed:
-            self._assembler.add(
-                frame.name,
-                frame.frame_id,
-                frame.time_s,
-                frame.lines,
-                frame.host_stamped,
-                frame.period_s,
-            )
+            self._add(frame)
         for reader in self._readers.values():
             reader.start()
         self._closed = False
@@ -338,18 +331,22 @@ class GigeStream:
                 if item.state == "up":
                     self._assembler.restart(item.name)
             else:
-                self._assembler.add(
-                    item.name,
-                    item.frame_id,
-                    item.time_s,
-                    item.lines,
-                    item.host_stamped,
-                    item.period_s,
-                )
+                self._add(item)
             try:
                 item = self._queue.get_nowait()
             except queue.Empty:
                 return
+
+    def _add(self, placed: _Placed) -> None:
+        """Hand a placed frame to the assembler."""
+        self._assembler.add(
+            placed.name,
+            placed.frame_id,
+            placed.time_s,
+            placed.lines,
+            placed.host_stamped,
+            placed.period_s,
+        )
 
     def _ready(self) -> int:
         """Scans every connected camera has delivered (a camera that is down holds none
